@@ -1,0 +1,8 @@
+"""Mitsuba emitter plugins of mi_plugins (installed as `mi_plugins.emitters`).
+
+`PLUGINS` maps each Mitsuba plugin name to "module:Class" inside this folder;
+`mi_plugins.register()` registers them for the active variant.
+"""
+
+PLUGINS = {
+}

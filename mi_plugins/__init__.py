@@ -1,0 +1,88 @@
+"""mi_plugins: Mitsuba 3 plugins for stochastic iteration, quasi-Monte Carlo
+light tracing and analytically verifiable test scenes.
+
+Usage::
+
+    import mitsuba as mi
+    mi.set_variant('llvm_ad_rgb')
+    import mi_plugins            # registers every plugin for the active variant
+
+After switching variants, call :func:`mi_plugins.register` again.
+"""
+import os
+import sys
+
+from . import _llvm
+
+__version__ = "0.1.0"
+
+#: Variants whose plugins are implemented (JIT, RGB). ``llvm_ad_rgb`` is the
+#: primary, tested target; ``llvm_rgb`` is tested too; CUDA variants use the same code.
+SUPPORTED_VARIANTS = ("llvm_ad_rgb", "llvm_rgb", "cuda_ad_rgb", "cuda_rgb")
+PRIMARY_VARIANT = "llvm_ad_rgb"
+
+_llvm.configure()  # before Dr.Jit loads libLLVM
+
+
+def _source_checkout_root():
+    """The repository root when running from a source checkout, else None."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        with open(os.path.join(root, "pyproject.toml")) as f:
+            is_ours = 'name = "mi-plugins"' in f.read()
+    except OSError:
+        return None
+    return root if is_ours and os.path.isdir(os.path.join(root, "integrators")) else None
+
+
+# In a source checkout the plugin folders sit beside this package; an installed
+# package has them inside. Either way they import as mi_plugins.<folder>.
+_ROOT = _source_checkout_root()
+if _ROOT is not None and _ROOT not in __path__:
+    __path__.append(_ROOT)
+
+import mitsuba as mi  # noqa: E402
+
+
+class VariantError(ImportError):
+    """The active Mitsuba variant is not one this package supports."""
+
+
+def _launched_as_cli():
+    prog = os.path.basename(sys.argv[0]) if sys.argv else ""
+    orig = getattr(sys, "orig_argv", [])
+    return prog == "mi-plugins" or (len(orig) >= 3 and orig[1] == "-m" and orig[2] == "mi_plugins")
+
+
+def check_variant(variant=None):
+    """Return the active variant, or raise VariantError naming the supported ones."""
+    variant = variant if variant is not None else mi.variant()
+    if variant is None:
+        raise VariantError(
+            "mi_plugins: no Mitsuba variant is set. Call mi.set_variant(...) with one of "
+            "%s before `import mi_plugins` (primary: '%s')."
+            % (", ".join(SUPPORTED_VARIANTS), PRIMARY_VARIANT))
+    if variant not in SUPPORTED_VARIANTS:
+        raise VariantError(
+            "mi_plugins: variant '%s' is not supported; the plugins are vectorised Dr.Jit "
+            "code for the JIT RGB variants %s (primary: '%s')."
+            % (variant, ", ".join(SUPPORTED_VARIANTS), PRIMARY_VARIANT))
+    if variant.startswith("llvm"):
+        _llvm.check_loaded()
+    return variant
+
+
+def register():
+    """Register every plugin of the package for the active Mitsuba variant.
+
+    Returns a dict ``{kind: [plugin names]}``. Call it again after
+    ``mi.set_variant`` switches to another variant.
+    """
+    from . import registry
+    return registry.register_all(check_variant())
+
+
+if mi.variant() is None and _launched_as_cli():
+    mi.set_variant(PRIMARY_VARIANT)
+
+registered = register()

@@ -1,0 +1,8 @@
+"""Mitsuba sampler plugins of mi_plugins (installed as `mi_plugins.samplers`).
+
+`PLUGINS` maps each Mitsuba plugin name to "module:Class" inside this folder;
+`mi_plugins.register()` registers them for the active variant.
+"""
+
+PLUGINS = {
+}
