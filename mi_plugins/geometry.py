@@ -38,6 +38,10 @@ class TriangleMesh:
         p0, p1, p2 = (self.vertices[self.faces[:, k]] for k in range(3))
         return 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
 
+    def subset(self, face_mask):
+        """The triangles selected by a boolean mask (vertices are kept as they are)."""
+        return TriangleMesh(self.vertices, self.faces[np.asarray(face_mask, dtype=bool)], self.uvs)
+
     def flipped(self):
         return TriangleMesh(self.vertices, self.faces[:, ::-1].copy(), self.uvs)
 
@@ -166,23 +170,41 @@ def mesh_shape(mesh, name):
     return {"type": "ply", "filename": mesh_file(mesh, name), "face_normals": True}
 
 
-def surfaces(geometry, sphere_subdivisions=3, sierpinski_level=2):
+def _meshes(geometry, sphere_subdivisions, sierpinski_level):
+    """{surface name: (TriangleMesh, cache name, triangles per pattern cell)} of a mesh geometry."""
+    if geometry == "sphere_mesh":
+        return {"sphere": (icosphere(sphere_subdivisions), "icosphere%d" % sphere_subdivisions, 1)}
+    if geometry == "box":
+        return {"walls": (box(), "box", 2)}
+    if geometry == "sierpinski":
+        if int(sierpinski_level) < 0 or int(sierpinski_level) > 6:
+            raise ValueError("sierpinski_level=%r: must be an integer in [0, 6]" % (sierpinski_level,))
+        return {"walls": (box(), "box", 2),
+                "sierpinski": (sierpinski_tetrahedron(sierpinski_level), "sierpinski%d" % sierpinski_level, 1)}
+    raise ValueError("geometry=%r: must be one of %s" % (geometry, ", ".join(GEOMETRIES)))
+
+
+def surfaces(geometry, sphere_subdivisions=3, sierpinski_level=2, pattern=False):
     """Shape dicts (no BSDF/emitter yet) of a closed geometry, keyed by surface name.
 
     ``'sphere'``: Mitsuba's analytic unit sphere seen from inside (flip_normals);
     ``'sphere_mesh'``: geodesic unit sphere mesh; ``'box'``: the cube [-1, 1]^3;
     ``'sierpinski'``: the box plus a Sierpinski tetrahedron of ``sierpinski_level``.
+
+    With ``pattern=True`` every mesh surface is split into two shapes ``NAME_0`` and
+    ``NAME_1`` holding alternating cells (box faces, triangles), so that materials can
+    vary over the surface with exactly piecewise-constant values. The analytic sphere
+    cannot be split (use a texture there).
     """
     if geometry == "sphere":
         return {"sphere": {"type": "sphere", "radius": 1.0, "flip_normals": True}}
-    if geometry == "sphere_mesh":
-        return {"sphere": mesh_shape(icosphere(sphere_subdivisions), "icosphere%d" % sphere_subdivisions)}
-    if geometry == "box":
-        return {"walls": mesh_shape(box(), "box")}
-    if geometry == "sierpinski":
-        if int(sierpinski_level) < 0 or int(sierpinski_level) > 6:
-            raise ValueError("sierpinski_level=%r: must be an integer in [0, 6]" % (sierpinski_level,))
-        return {"walls": mesh_shape(box(), "box"),
-                "sierpinski": mesh_shape(sierpinski_tetrahedron(sierpinski_level),
-                                         "sierpinski%d" % sierpinski_level)}
-    raise ValueError("geometry=%r: must be one of %s" % (geometry, ", ".join(GEOMETRIES)))
+    result = {}
+    for name, (mesh, cache_name, cell) in _meshes(geometry, sphere_subdivisions, sierpinski_level).items():
+        if not pattern:
+            result[name] = mesh_shape(mesh, cache_name)
+            continue
+        parity = (np.arange(mesh.face_count) // cell) % 2
+        for group in (0, 1):
+            result["%s_%d" % (name, group)] = mesh_shape(mesh.subset(parity == group),
+                                                         "%s_%d" % (cache_name, group))
+    return result

@@ -1,0 +1,209 @@
+"""The classic analytic cases: furnace, Keller's cube, Bekaert, diffuse and mirror sphere.
+
+Exact values (see ``../shared/papers/analytic-test-scenes.txt``), with Mitsuba's
+``max_depth`` convention (D = 1: emitters only; D = -1: unbounded):
+
+- furnace:        L = Le * sum_{k<D} a^k  ->  Le / (1 - a)
+- bekaert:        L = 1 (albedo a(x), emission 1 - a(x)); only D = -1 is exact
+- diffuse sphere: L(x) = Le(x) + E * sum_{1<=k<D} a^k  ->  Le(x) + E a / (1 - a),
+                  E = area mean of Le over the sphere (paper section 3.1)
+- mirror sphere:  L = Le * sum_{k<D} k_r^k  ->  Le / (1 - k_r)   (paper section 3.2)
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .. import geometry as geo
+from .case import (AnalyticCase, camera_for, closed_surfaces, require_range, rgb, rgb_dict,
+                   truncated_geometric)
+
+#: Bekaert checkerboard albedos (RGB) of the two cells; emission is 1 - albedo.
+BEKAERT_ALBEDO = ((0.2, 0.5, 0.8), (0.7, 0.35, 0.1))
+
+
+class ConstantCase(AnalyticCase):
+    """A case whose exact radiance is the same at every point and direction."""
+
+    def __init__(self, name, surfaces, camera, value_fn, truncation_exact=True, **kw):
+        super().__init__(name, surfaces, camera, **kw)
+        self._value_fn = value_fn
+        self.truncation_exact = truncation_exact
+
+    def exact_constant(self, max_depth=-1):
+        if max_depth is not None and max_depth >= 0 and not self.truncation_exact:
+            raise ValueError("%s: only max_depth=-1 has an exact value (got max_depth=%d)"
+                             % (self.name, max_depth))
+        return self._value_fn(max_depth)
+
+
+def furnace(albedo=0.5, emission=0.5, geometry="box", resolution=32, **geometry_options):
+    """Constant diffuse albedo a and diffuse emission Le everywhere: L = Le / (1 - a).
+
+    albedo in [0, 1) per channel; emission >= 0 per channel.
+    """
+    a = require_range(albedo, "albedo", 0.0, 1.0, hi_open=True,
+                      what="range of contractive albedos (L = Le/(1-a) diverges at a = 1)")
+    le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
+    surfaces = closed_surfaces(geometry, {"type": "diffuse", "reflectance": rgb_dict(a)},
+                               {"type": "area", "radiance": rgb_dict(le)}, **geometry_options)
+    return ConstantCase("furnace_" + geometry, surfaces, camera_for(geometry),
+                        lambda d: le * truncated_geometric(a, d), resolution=resolution,
+                        params=dict(albedo=albedo, emission=emission, geometry=geometry),
+                        description="diffuse albedo %s, emission %s: L = Le/(1-a)" % (albedo, emission))
+
+
+def keller_cube(resolution=32):
+    """Keller's empty cube (12 triangles, rho = 1/2, L0 = 1/4): L = 1/2."""
+    case = furnace(albedo=0.5, emission=0.25, geometry="box", resolution=resolution)
+    case.name = "keller_cube"
+    case.description = "Keller's cube: rho = 1/2, Le = 1/4, L = 1/2"
+    return case
+
+
+def _bekaert_textures():
+    """Nearest-filtered 4 x 4 RGB checkerboards of albedo a(x) and emission 1 - a(x)."""
+    a0, a1 = (np.array(c, dtype=np.float32) for c in BEKAERT_ALBEDO)
+    checker = (np.add.outer(np.arange(4), np.arange(4)) % 2)[..., None]
+    albedo = np.where(checker == 0, a0, a1).astype(np.float32)
+    tex = lambda arr: {"type": "bitmap", "bitmap": mi.Bitmap(arr), "filter_type": "nearest", "raw": True}
+    return tex(albedo), tex((1.0 - albedo).astype(np.float32))
+
+
+def bekaert(geometry="box", resolution=32, **geometry_options):
+    """Spatially varying albedo a(x) with emission 1 - a(x) everywhere: L = 1.
+
+    On meshes, alternating cells (box faces, triangles) get the two RGB albedos of
+    ``BEKAERT_ALBEDO`` (piecewise constant, exact for finite-element methods too); on
+    the analytic sphere a 4 x 4 RGB checkerboard texture does the same.
+    """
+    if geometry == "sphere":
+        albedo, emission = _bekaert_textures()
+        surfaces = closed_surfaces(geometry, {"type": "diffuse", "reflectance": albedo},
+                                   {"type": "area", "radiance": emission})
+    else:
+        surfaces = geo.surfaces(geometry, pattern=True, **geometry_options)
+        for key, shape in surfaces.items():
+            a = np.array(BEKAERT_ALBEDO[int(key[-1])])
+            shape["bsdf"] = {"type": "diffuse", "reflectance": rgb_dict(a)}
+            shape["emitter"] = {"type": "area", "radiance": rgb_dict(1.0 - a)}
+    return ConstantCase("bekaert_" + geometry, surfaces, camera_for(geometry), lambda d: np.ones(3),
+                        truncation_exact=False, resolution=resolution, params=dict(geometry=geometry),
+                        description="piecewise albedo a(x), emission 1 - a(x): L = 1")
+
+
+def default_sphere_emission():
+    """Smooth RGB emission texture (6 x 8 texels, constant polar rows) for the diffuse sphere."""
+    v = (np.arange(6)[:, None] + 0.5) / 6
+    u = (np.arange(8)[None, :] + 0.5) / 8
+    r = 0.6 + 0.5 * np.sin(np.pi * v) * np.cos(2 * np.pi * u)
+    g = 0.4 + 0.3 * np.sin(np.pi * v) * np.sin(4 * np.pi * u)
+    b = 0.2 + 0.8 * v * (1 - v) + 0.0 * u
+    tex = np.stack([r, g, b], axis=-1)
+    tex[0, :] = tex[0, :].mean(axis=0)   # constant polar rows keep Le continuous at the poles
+    tex[-1, :] = tex[-1, :].mean(axis=0)
+    return tex.astype(np.float32)
+
+
+class DiffuseSphereCase(AnalyticCase):
+    """Inside a sphere: L(x) = Le(x) + E * sum_{1<=k<D} a^k (exact for the analytic sphere)."""
+
+    def __init__(self, name, surfaces, camera, albedo, emission_texture, mean_emission, **kw):
+        super().__init__(name, surfaces, camera, **kw)
+        self.albedo = albedo
+        self.emission_texture = emission_texture
+        self.mean_emission = mean_emission
+
+    def exact_at(self, si, ray, max_depth=-1):
+        le = self.emission_texture.eval(si)
+        bounces = truncated_geometric(self.albedo, max_depth) - 1.0 if (max_depth is None or max_depth != 0) \
+            else np.zeros(3)
+        reflected = mi.Color3f(*[float(v) for v in self.mean_emission * bounces])
+        return mi.Color3f(le) + reflected if max_depth != 0 else dr.zeros(mi.Color3f, dr.width(si.p))
+
+
+def _emission_texture_dict(emission):
+    if np.ndim(emission) >= 2:
+        tex = np.asarray(emission, dtype=np.float32)
+        if tex.ndim == 2:
+            tex = np.repeat(tex[..., None], 3, axis=2)
+        if tex.ndim != 3 or tex.shape[2] != 3 or np.any(tex < 0) or not np.all(np.isfinite(tex)):
+            raise ValueError("emission: a texture must be a finite, non-negative (H, W) or (H, W, 3) "
+                             "array (got shape %s)" % (np.shape(emission),))
+        return {"type": "bitmap", "bitmap": mi.Bitmap(tex), "filter_type": "bilinear",
+                "wrap_mode": "repeat", "raw": True}
+    return rgb_dict(require_range(emission, "emission", 0.0, None, what="range of physical emission"))
+
+
+def sphere_area_mean(texture, n=(1024, 2048)):
+    """Area mean of a texture over the unit sphere with Mitsuba's sphere uv mapping
+    (u = phi / 2pi, v = theta / pi): midpoint rule in (u, cos theta)."""
+    nz, nu = n
+    iz, iu = np.meshgrid((np.arange(nz) + 0.5) / nz, (np.arange(nu) + 0.5) / nu, indexing="ij")
+    z = 1.0 - 2.0 * iz
+    si = dr.zeros(mi.SurfaceInteraction3f, nz * nu)
+    si.uv = mi.Point2f(mi.Float(iu.ravel()), mi.Float(np.arccos(z).ravel() / np.pi))
+    value = texture.eval(si)
+    return np.array(value, dtype=np.float64).reshape(3, -1).mean(axis=1)
+
+
+def diffuse_sphere(albedo=0.5, emission=None, radius=1.0, resolution=32):
+    """Inside an analytic sphere of ``radius`` with constant diffuse albedo and spatially
+    varying diffuse emission Le(x) (texture; default: a smooth RGB bitmap):
+    L(x) = Le(x) + E a / (1 - a), E = area mean of Le (paper section 3.1)."""
+    a = require_range(albedo, "albedo", 0.0, 1.0, hi_open=True,
+                      what="range of contractive albedos (the sphere response diverges at a = 1)")
+    r = float(require_range(radius, "radius", 0.0, None, lo_open=True, what="range")[0])
+    emission = default_sphere_emission() if emission is None else emission
+    radiance = _emission_texture_dict(emission)
+    surfaces = closed_surfaces("sphere", {"type": "diffuse", "reflectance": rgb_dict(a)},
+                               {"type": "area", "radiance": radiance})
+    surfaces["sphere"]["radius"] = r
+    texture = mi.load_dict(radiance)
+    mean = sphere_area_mean(texture)
+    return DiffuseSphereCase("diffuse_sphere", surfaces, camera_for("sphere", r), a, texture, mean,
+                             resolution=resolution,
+                             params=dict(albedo=albedo, radius=r, emission="texture" if np.ndim(emission) >= 2
+                                         else emission),
+                             description="albedo %s, textured emission (E = %s): L = Le(x) + E a/(1-a)"
+                             % (albedo, np.array2string(mean, precision=4)))
+
+
+class MirrorSphereCase(ConstantCase):
+    def not_applicable(self, integrator):
+        if integrator.get("type") == "ptracer":
+            return ("a light tracer cannot connect light paths to a pinhole camera through an ideal "
+                    "mirror (every light path reflected by the mirror has zero probability of reaching it)")
+        return None
+
+
+def mirror_sphere(reflectance=0.5, emission=0.5, resolution=32):
+    """Inside an ideal mirror sphere of reflectance k that also emits diffusely Le:
+    L = Le / (1 - k) (paper section 3.2)."""
+    k = require_range(reflectance, "reflectance", 0.0, 1.0, hi_open=True,
+                      what="range of contractive mirror reflectances")
+    le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
+    bsdf = {"type": "conductor", "material": "none", "specular_reflectance": rgb_dict(k)}
+    surfaces = closed_surfaces("sphere", bsdf, {"type": "area", "radiance": rgb_dict(le)})
+    return MirrorSphereCase("mirror_sphere", surfaces, camera_for("sphere"),
+                            lambda d: le * truncated_geometric(k, d), resolution=resolution,
+                            params=dict(reflectance=reflectance, emission=emission),
+                            description="ideal mirror k = %s, emission %s: L = Le/(1-k)" % (reflectance, emission))
+
+
+#: name -> factory(resolution=...) of the cases in the verification matrix
+MATRIX_CASES = {
+    "furnace_box": lambda **kw: furnace(0.5, 0.5, "box", **kw),
+    "furnace_sphere": lambda **kw: furnace(0.5, 0.5, "sphere", **kw),
+    "furnace_sphere_mesh": lambda **kw: furnace(0.5, 0.5, "sphere_mesh", **kw),
+    "furnace_sierpinski": lambda **kw: furnace(0.5, 0.5, "sierpinski", **kw),
+    "keller_cube": lambda **kw: keller_cube(**kw),
+    "bekaert_box": lambda **kw: bekaert("box", **kw),
+    "bekaert_sphere": lambda **kw: bekaert("sphere", **kw),
+    "bekaert_sierpinski": lambda **kw: bekaert("sierpinski", **kw),
+    "diffuse_sphere": lambda **kw: diffuse_sphere(0.5, **kw),
+    "mirror_sphere": lambda **kw: mirror_sphere(0.5, 0.5, **kw),
+}
+
+#: the subset of `mi-plugins verify --quick`
+QUICK_CASES = ("furnace_box", "furnace_sphere", "keller_cube", "bekaert_sierpinski", "diffuse_sphere",
+               "mirror_sphere")

@@ -1,0 +1,113 @@
+"""Command line interface: ``mi-plugins verify`` and ``mi-plugins render``.
+
+Also available as ``python -m mi_plugins``.
+"""
+import argparse
+import os
+import sys
+import time
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="mi-plugins", description="Mitsuba 3 plugins with analytic verification.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    v = sub.add_parser("verify", help="run the integrator x analytic-case verification matrix")
+    v.add_argument("--quick", action="store_true", help="small subset at low resolution (< 2 minutes)")
+    v.add_argument("--integrators", nargs="+", metavar="NAME", help="integrators of the matrix to run")
+    v.add_argument("--scenes", nargs="+", metavar="CASE", help="analytic cases to run")
+    v.add_argument("--report", metavar="DIR", help="write verify.json and verify.md into DIR")
+    v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--list", action="store_true", help="list the integrators and cases and exit")
+
+    r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR file")
+    r.add_argument("scene", metavar="SCENE.xml")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.exr")
+    r.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the scene's sampler)")
+    r.add_argument("--passes", type=int, default=8, help="number of passes the spp are split into")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("-D", dest="defines", action="append", default=[], metavar="name=value",
+                   help="set an XML $parameter (repeatable)")
+    return p
+
+
+def _verify(args):
+    from .analytic import matrix
+    if args.list:
+        print("integrators: " + ", ".join(matrix.INTEGRATORS))
+        print("cases:       " + ", ".join(matrix.all_cases()))
+        print("quick cases: " + ", ".join(matrix.quick_cases()))
+        return 0
+    t0 = time.perf_counter()
+
+    def progress(r):
+        print("  %-5s %-22s %-16s %s" % (r.status, r.case, r.integrator,
+                                         r.reason if not r.applicable else "z=%+.2f  %.2fs" % (r.z, r.seconds)),
+              flush=True)
+
+    results = matrix.run(args.integrators, args.scenes, quick=args.quick, seed=args.seed, progress=progress)
+    print()
+    print(matrix.format_table(results))
+    bad = [r for r in results if not r.ok]
+    counts = {s: sum(r.status == s for r in results) for s in ("PASS", "FAIL", "XFAIL", "XPASS", "N/A")}
+    print("\n%d passed, %d failed, %d known failures, %d unexpected passes, %d not applicable (%.1f s)"
+          % (counts["PASS"], counts["FAIL"], counts["XFAIL"], counts["XPASS"], counts["N/A"],
+             time.perf_counter() - t0))
+    for r in bad:
+        print("\n" + repr(r))
+    if args.report:
+        for path in matrix.write_reports(results, args.report):
+            print("wrote " + path)
+    return 1 if bad else 0
+
+
+def _parse_defines(defines):
+    params = {}
+    for item in defines:
+        if "=" not in item:
+            raise ValueError("-D %s: expected name=value" % item)
+        name, value = item.split("=", 1)
+        params[name.strip()] = value
+    return params
+
+
+def _render(args):
+    import mitsuba as mi
+    from . import exr, passes
+    if not os.path.isfile(args.scene):
+        raise FileNotFoundError("scene file '%s' does not exist" % args.scene)
+    if args.spp is not None and args.spp < 1:
+        raise ValueError("--spp %d: must be a positive integer" % args.spp)
+    if args.passes < 1:
+        raise ValueError("--passes %d: must be a positive integer" % args.passes)
+    scene = mi.load_file(args.scene, **_parse_defines(args.defines))
+    result = passes.render_in_passes(scene, spp=args.spp, passes=args.passes, seed=args.seed, progress_bar=True)
+    meta = {"integrator": str(scene.integrator().class_name()) if hasattr(scene.integrator(), "class_name")
+            else type(scene.integrator()).__name__,
+            "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
+            "passes": "%d/%d" % (result.passes_done, result.passes), "scene": os.path.abspath(args.scene)}
+    exr.write(args.output, result.image, meta)
+    state = "interrupted after" if result.interrupted else "finished"
+    print("%s %d/%d passes (%d spp, %.2f s); wrote %s"
+          % (state, result.passes_done, result.passes, result.spp_done, result.seconds, args.output))
+    return 130 if result.interrupted and result.passes_done == 0 else 0
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    try:
+        return _verify(args) if args.command == "verify" else _render(args)
+    except KeyboardInterrupt:
+        print("mi-plugins: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # one clear line instead of a traceback
+        if os.environ.get("MI_PLUGINS_DEBUG"):
+            raise
+        msg = str(e).strip().splitlines()
+        print("mi-plugins: error: %s" % (" ".join(m.strip() for m in msg) if msg else type(e).__name__),
+              file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
