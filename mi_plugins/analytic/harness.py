@@ -8,7 +8,11 @@ such as light tracers and finite-element methods), and passes only if
    ``runs - 1`` degrees of freedom at the same two-sided level as ``z_bound``
    under a normal law), plus an explicit known ``bias``;
 2. per-pixel t-tests at a Šidák-corrected family-wise level ``pixel_alpha``
-   fail for at most ``max_pixel_failure_fraction`` of the pixel channels;
+   fail for at most ``max_pixel_failure_fraction`` of the pixel channels. With
+   few runs a pixel's sample variance is unreliable (zero when, by chance, all
+   runs agree, as happens with Russian roulette), so the tests are *moderated*
+   (empirical Bayes, as in limma): each pixel variance is shrunk towards the
+   channel's pooled variance with ``PRIOR_DF`` prior degrees of freedom;
 3. no image contains NaN or infinite values.
 
 Absolute differences up to ``FLOAT_TOLERANCE`` * max(1, |exact|) are accepted
@@ -24,6 +28,7 @@ import numpy as np
 from . import stats
 
 FLOAT_TOLERANCE = 2e-5
+PRIOR_DF = 8
 
 
 @dataclass
@@ -133,11 +138,14 @@ def compare(images, exact, z_bound=4.0, bias=0.0, pixel_alpha=0.01, max_pixel_fa
                         % (mean, expected_mean, diff, bias, z_limit, se, z))
 
     pixel_mean = images.mean(axis=0)
-    pixel_se = images.std(axis=0, ddof=1) / math.sqrt(runs)
+    pixel_var = images.var(axis=0, ddof=1)
+    pooled_var = pixel_var.reshape(-1, pixel_var.shape[-1]).mean(axis=0)
+    moderated_var = (df * pixel_var + PRIOR_DF * pooled_var) / (df + PRIOR_DF)
+    pixel_se = np.sqrt(moderated_var / runs)
     excess = np.abs(pixel_mean - exact) - bias - FLOAT_TOLERANCE * np.maximum(1.0, np.abs(exact))
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(excess <= 0, 0.0, np.where(pixel_se > 0, excess / pixel_se, np.inf))
-    p = stats.t_two_sided_p(np.minimum(t, 1e6), df)
+    p = stats.t_two_sided_p(np.minimum(t, 1e6), df + PRIOR_DF)
     n_tests = int(exact.size)
     pixel_failures = int(np.sum(p < stats.sidak_alpha(pixel_alpha, n_tests)))
     if pixel_failures > max_pixel_failure_fraction * n_tests:

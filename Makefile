@@ -1,0 +1,29 @@
+# Two commands do all the set-up on a fresh Debian machine:
+#   make demo   set up, then run the quick verification table
+#   make test   set up, then run the test suite
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+
+.PHONY: setup demo test verify benchmarks clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	bash .ci/ensure_llvm.sh
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[all]"
+	touch $@
+
+demo: setup
+	$(VENV)/bin/mi-plugins verify --quick --report reports/quick
+
+verify: setup
+	$(VENV)/bin/mi-plugins verify --report reports/full
+
+test: setup
+	$(PY) -m pytest -q
+
+clean:
+	rm -rf $(VENV) reports build *.egg-info

@@ -1,0 +1,75 @@
+"""Package set-up: registration, variant errors, LLVM detection, layout."""
+import os
+
+import pytest
+
+import mitsuba as mi
+import mi_plugins
+from mi_plugins import _llvm, registry
+
+from conftest import REPO, run_python
+
+
+def test_every_listed_plugin_is_registered():
+    table = registry.plugin_table()
+    registered = mi_plugins.register()
+    for kind, plugins in table.items():
+        assert sorted(registered.get(kind, [])) == sorted(plugins)
+
+
+def test_import_without_variant_names_supported_variants():
+    r = run_python("import mi_plugins")
+    assert r.returncode != 0
+    assert "no Mitsuba variant is set" in r.stderr and "llvm_ad_rgb" in r.stderr
+
+
+def test_import_with_scalar_variant_is_refused():
+    r = run_python("import mitsuba as mi; mi.set_variant('scalar_rgb'); import mi_plugins")
+    assert r.returncode != 0
+    assert "variant 'scalar_rgb' is not supported" in r.stderr and "llvm_ad_rgb" in r.stderr
+
+
+def test_variant_switch_refuses_mono_and_reregisters_rgb():
+    code = ("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); import mi_plugins\n"
+            "mi.set_variant('llvm_ad_mono')\n"
+            "try:\n    mi_plugins.register()\nexcept mi_plugins.VariantError as e:\n    print('REFUSED', e)\n"
+            "mi.set_variant('llvm_ad_rgb'); r = mi_plugins.register()\n"
+            "from mi_plugins import analytic\n"
+            "res = analytic.check(analytic.furnace(resolution=8), 'path', spp=16, runs=4)\n"
+            "print('OK', res.passed, sorted(sum(r.values(), [])))")
+    r = run_python(code)
+    assert r.returncode == 0, r.stderr
+    assert "REFUSED mi_plugins: variant 'llvm_ad_mono' is not supported" in r.stdout
+    assert "OK True" in r.stdout
+
+
+def test_old_llvm_gives_clear_error():
+    old = [p for p in ("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1", "/usr/lib/x86_64-linux-gnu/libLLVM-15.so")
+           if os.path.exists(p)]
+    if not old:
+        pytest.skip("no LLVM 15 library on this machine to simulate an old LLVM")
+    r = run_python("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); import mi_plugins",
+                   env={"DRJIT_LIBLLVM_PATH": old[0]})
+    assert r.returncode != 0
+    assert "needs LLVM >= 19" in r.stderr and "libllvm19" in r.stderr
+
+
+def test_find_libllvm_returns_a_recent_version():
+    path = _llvm.find_libllvm()
+    assert path is not None and _llvm._major(path) >= _llvm.MIN_LLVM_MAJOR
+
+
+def test_plugin_folders_import_as_subpackages_only(tmp_path):
+    # Run outside the checkout: the generic folder names must not be importable.
+    r = run_python("import importlib.util as u, mitsuba as mi; mi.set_variant('llvm_ad_rgb');"
+                   "import mi_plugins.integrators, mi_plugins.bsdfs;"
+                   "print([u.find_spec(n) is None for n in ('integrators', 'bsdfs', 'emitters', 'samplers')])",
+                   cwd=str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "[True, True, True, True]" in r.stdout
+
+
+def test_pyproject_maps_plugin_folders_into_the_package():
+    text = open(os.path.join(REPO, "pyproject.toml")).read()
+    for folder in ("integrators", "bsdfs", "emitters", "samplers"):
+        assert '"mi_plugins.%s" = "%s"' % (folder, folder) in text
