@@ -76,6 +76,11 @@ class AnalyticCase:
 
     #: True when every surface is a triangle mesh (finite-element methods need this)
     meshes_only = True
+    #: stratified points per pixel side used by expected() where the radiance varies
+    supersampling = 12
+    #: a known, bounded absolute bias of the stated value (0: exact); the matrix passes it
+    #: to check() explicitly as ``bias=``
+    known_bias = 0.0
 
     def __init__(self, name, surfaces, camera, resolution=32, fov=60.0, params=None, description=""):
         if int(resolution) < 1:
@@ -120,17 +125,17 @@ class AnalyticCase:
         """The exact radiance as an RGB array when it is the same everywhere, else None."""
         return None
 
-    def exact_at(self, si, ray, max_depth=-1):
-        """Exact radiance (mi.Color3f) leaving the first hit ``si`` towards the camera."""
+    def exact_at(self, si, ray, max_depth, scene):
+        """Exact radiance (mi.Color3f) leaving the first hit ``si`` of ``scene`` towards the camera."""
         raise NotImplementedError
 
-    def expected(self, max_depth=-1, supersampling=12):
+    def expected(self, max_depth=-1, supersampling=None):
         """Exact per-pixel radiance, numpy (H, W, 3): the average of the exact radiance over
         each pixel footprint (box filter), stratified ``supersampling``^2 points per pixel."""
         const = self.exact_constant(max_depth)
         if const is not None:
             return np.broadcast_to(const, (self.resolution, self.resolution, 3)).astype(np.float64)
-        return self._supersampled(max_depth, int(supersampling))
+        return self._supersampled(max_depth, int(supersampling or self.supersampling))
 
     def expected_mean(self, max_depth=-1):
         return float(np.mean(self.expected(max_depth)))
@@ -147,7 +152,7 @@ class AnalyticCase:
         py = mi.Float(pixel // res) + (mi.Float(sub // k) + 0.5) / k
         ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(px / res, py / res), mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        value = self.exact_at(si, ray, max_depth)
+        value = self.exact_at(si, ray, max_depth, scene)
         value = dr.select(si.is_valid(), value, dr.nan)  # an open case would show as NaN
         acc = dr.zeros(mi.Color3f, res * res)
         dr.scatter_reduce(dr.ReduceOp.Add, acc, value / (k * k), pixel)

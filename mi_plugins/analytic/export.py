@@ -30,7 +30,7 @@ def exact_statement(case):
         img = case.expected(-1)
         lines.append("EXACT RADIANCE: spatially varying; image mean %s (RGB, max_depth = -1). Per-pixel exact "
                      "image: mi_plugins.analytic.cases()['%s']().expected()."
-                     % (", ".join("%.10g" % v for v in img.reshape(-1, 3).mean(axis=0)), case.name))
+                     % (", ".join("%.6g" % v for v in img.reshape(-1, 3).mean(axis=0)), case.name))
     lines.append("Parameters: -D integrator=NAME (default path), -D spp=N (default 64). Box pixel filter: "
                  "a pixel's exact value is the mean exact radiance over its footprint.")
     return "\n".join(lines)
