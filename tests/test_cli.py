@@ -71,3 +71,26 @@ def test_interrupted_render_keeps_finished_passes():
     res = passes.render_in_passes(scene, spp=8, passes=4, callback=stop_after_two)
     assert res.interrupted and res.passes_done == 2 and res.spp_done == 4
     assert abs(res.image.mean() - 0.5) < 0.05
+
+
+def test_ctrl_c_writes_the_finished_passes(tmp_path):
+    import signal
+    import time
+    out = tmp_path / "partial.exr"
+    proc = subprocess.Popen(CLI + ["render", os.path.join("configs", "furnace_sierpinski.xml"), "-o", str(out),
+                                   "--spp", "100000", "--passes", "1000", "-D", "integrator=ptracer"],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    # wait until tqdm reports a finished pass, then press Ctrl-C
+    buf = ""
+    while time.time() < deadline and "/1000" not in buf.replace(" 0/1000", ""):
+        buf += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    proc.send_signal(signal.SIGINT)
+    stdout, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stdout
+    assert "interrupted after" in stdout
+    image, meta = exr.read(str(out))
+    done, total = (int(v) for v in meta["passes"].split("/"))
+    assert 1 <= done < total == 1000
+    assert int(meta["spp"]) == 100 * done
+    assert abs(image.mean() - 1.0) < 0.2 and np.all(np.isfinite(image))
