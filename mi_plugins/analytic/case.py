@@ -156,8 +156,7 @@ class AnalyticCase:
         value = dr.select(si.is_valid(), value, dr.nan)  # an open case would show as NaN
         acc = dr.zeros(mi.Color3f, res * res)
         dr.scatter_reduce(dr.ReduceOp.Add, acc, value / (k * k), pixel)
-        img = np.array(acc, dtype=np.float64).reshape(res, res, 3) if np.array(acc).shape[0] != 3 \
-            else np.array(acc, dtype=np.float64).T.reshape(res, res, 3)
+        img = np.array(acc, dtype=np.float64).T.reshape(res, res, 3)  # Color3f -> (3, N)
         if not np.all(np.isfinite(img)):
             raise RuntimeError("%s: camera rays escape the scene; the case is not closed" % self.name)
         return img
