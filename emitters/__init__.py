@@ -5,4 +5,8 @@
 """
 
 PLUGINS = {
+    "simulated_area": "simulated_area:SimulatedAreaEmitter",
 }
+
+#: modules holding base classes of the plugins above (reloaded first on a variant switch)
+BASES = ["surface_emitter"]

@@ -25,7 +25,7 @@ def _plugin_class(module_name, class_name, variant):
     if _loaded_for.get(module_name) not in (None, variant):
         module = importlib.reload(module)
     _loaded_for[module_name] = variant
-    return getattr(module, class_name)
+    return getattr(module, class_name) if class_name else module
 
 
 def plugin_table():
@@ -39,6 +39,10 @@ def plugin_table():
 
 
 def register_all(variant):
+    for folder in KINDS:
+        pkg = importlib.import_module("mi_plugins." + folder)
+        for base in getattr(pkg, "BASES", []):
+            _plugin_class("mi_plugins.%s.%s" % (folder, base), None, variant)
     registered = {}
     for kind, plugins in plugin_table().items():
         register_fn = getattr(mi, "register_" + kind)

@@ -1,0 +1,109 @@
+"""``simulated_area``: the simulated-emission light source of BRDF testing.
+
+Implements section 2.1 of Szirmay-Kalos, Kovács and Abbas, "Testing Monte-Carlo
+global illumination methods with analytically computable scenes": in a closed
+scene, if every surface emits
+
+    Le(x, w) = L~ (1 - a(x, w)),   a(x, w) = integral of f(w', x, w) cos(theta') dw',
+
+the radiance is L~ everywhere, whatever the BSDFs are. The albedo a is estimated
+afresh at every evaluation with M random directions (eq. 4), so the emission is a
+random function whose mean is exactly L~ (1 - a): Monte-Carlo integrators that
+average over samples still converge to L~.
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - target_radiance
+     - float or RGB, > 0
+     - (required)
+     - L~, the radiance the closed scene will have everywhere.
+   * - samples
+     - int >= 1
+     - 1
+     - M, directions per evaluation of the albedo estimate.
+   * - estimator
+     - 'uniform' | 'cosine' | 'bsdf'
+     - 'uniform'
+     - How the M directions are drawn: uniformly on the hemisphere (the paper's
+       eq. 4), cosine-weighted, or by the surface BSDF's own ``sample()`` (lowest
+       variance; the only one valid for BSDFs with delta lobes).
+
+The emitter uses the BSDF of the shape it is attached to. Single estimates can be
+negative (an unbiased estimate of 1 - a from one direction can exceed 1); that is
+inherent to the method and averages out. Le is evaluated for the outgoing
+direction w = si.wi; the BSDF is queried with si.wi = w and wo = w' (its value
+includes cos(theta')), i.e. the albedo for light leaving in direction w.
+"""
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins.emitters.surface_emitter import SurfaceEmitter
+from mi_plugins.sampling import Salt, hashed_rng, hemisphere_pdf, sample_hemisphere
+
+ESTIMATORS = ("uniform", "cosine", "bsdf")
+
+
+def _target_radiance(props):
+    if not props.has_property("target_radiance"):
+        raise ValueError("simulated_area: parameter 'target_radiance' (L~, float or RGB > 0) is required")
+    value = props.get("target_radiance")
+    try:
+        rgb = [float(value)] * 3
+    except TypeError:
+        rgb = [float(v) for v in value]
+    if min(rgb) <= 0:
+        raise ValueError("simulated_area: target_radiance=%s must be > 0 in every channel" % (rgb,))
+    return rgb
+
+
+class SimulatedAreaEmitter(SurfaceEmitter):
+    def __init__(self, props):
+        super().__init__(props)
+        self.target = _target_radiance(props)
+        self.samples = props.get("samples", 1)
+        if not isinstance(self.samples, int) or self.samples < 1:
+            raise ValueError("simulated_area: samples=%r must be an integer >= 1" % (self.samples,))
+        self.estimator = props.get("estimator", "uniform")
+        if self.estimator not in ESTIMATORS:
+            raise ValueError("simulated_area: estimator=%r must be one of %s"
+                             % (self.estimator, ", ".join(ESTIMATORS)))
+        self.salt = Salt(start=hash(props.id()) & 0xFFFF if props.id() else 0)
+
+    def _bsdf(self):
+        bsdf = self._shape().bsdf()
+        if self.estimator != "bsdf" and mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta):
+            raise ValueError("simulated_area: the BSDF of shape '%s' has delta lobes, which estimator=%r "
+                             "cannot sample; use estimator='bsdf'" % (self._shape().id(), self.estimator))
+        return bsdf
+
+    def albedo_estimate(self, si, wo, active):
+        """Unbiased estimate of a(x, wo) from ``samples`` directions (Color3f)."""
+        bsdf = self._bsdf()
+        rng = hashed_rng(si, self.salt.next())
+        ctx = mi.BSDFContext(mi.TransportMode.Radiance)
+        query = mi.SurfaceInteraction3f(si)
+        query.wi = wo
+        total = dr.zeros(mi.Color3f, dr.width(wo))
+        for _ in range(self.samples):  # M is a small constant: unrolled into the kernel
+            u1, u2 = rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())
+            if self.estimator == "bsdf":
+                bs, weight = bsdf.sample(ctx, query, u1, u2, active)
+                total += dr.select(active & (bs.pdf > 0), weight, 0.0)
+            else:
+                d = sample_hemisphere(self.estimator, u2)
+                value = bsdf.eval(ctx, query, d, active)
+                total += dr.select(active, value / hemisphere_pdf(self.estimator, d), 0.0)
+        return total / self.samples
+
+    def radiance(self, si, wo, active):
+        target = mi.Color3f(*self.target)
+        return target * (1.0 - self.albedo_estimate(si, wo, active))
+
+    def to_string(self):
+        return "SimulatedAreaEmitter[target_radiance=%s, samples=%d, estimator=%s]" % (
+            self.target, self.samples, self.estimator)

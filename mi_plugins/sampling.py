@@ -1,0 +1,55 @@
+"""Shared sampling helpers (Dr.Jit, vectorised).
+
+- :func:`hashed_rng`: a PCG32 seeded by hashing surface-interaction inputs and a
+  salt, for fresh random numbers inside plugin methods that receive no sampler
+  (e.g. ``Emitter.eval``). Identical inputs and salt give identical numbers.
+- :class:`Salt`: a per-call counter held in an opaque Dr.Jit value, so changing
+  it does not change the traced kernel (no recompilation).
+- :func:`sample_hemisphere` / :func:`hemisphere_pdf`: the direction strategies of
+  the simulated-emission estimators.
+"""
+import drjit as dr
+import mitsuba as mi
+
+HEMISPHERE_STRATEGIES = ("uniform", "cosine")
+
+
+class Salt:
+    """A counter that yields a new opaque UInt32 salt at every call."""
+
+    def __init__(self, start=0):
+        self.count = int(start)
+
+    def next(self):
+        self.count = (self.count + 1) & 0xFFFFFFFF
+        return dr.opaque(mi.UInt32, self.count)
+
+
+def _bits(x):
+    return dr.reinterpret_array(mi.UInt32, x)
+
+
+def hashed_rng(si, salt):
+    """PCG32 (one lane per entry of ``si``) seeded from si.p, si.wi, si.uv and ``salt``."""
+    v0 = _bits(si.p.x) ^ (_bits(si.p.y) * 0x9E3779B9) ^ (_bits(si.p.z) * 0x85EBCA6B) ^ (_bits(si.uv.x) * 0x27D4EB2F)
+    v1 = _bits(si.wi.x) ^ (_bits(si.wi.y) * 0xC2B2AE35) ^ (_bits(si.wi.z) * 0x165667B1) ^ salt
+    a, b = mi.sample_tea_32(v0, v1, 8)
+    c, d = mi.sample_tea_32(b, a ^ salt, 8)
+    state = (mi.UInt64(a) << 32) | mi.UInt64(b)
+    seq = (mi.UInt64(c) << 32) | mi.UInt64(d)
+    return mi.PCG32(dr.width(state), state, seq)
+
+
+def sample_hemisphere(strategy, sample):
+    """Local direction on the upper hemisphere: 'uniform' or 'cosine'."""
+    if strategy == "uniform":
+        return mi.warp.square_to_uniform_hemisphere(sample)
+    if strategy == "cosine":
+        return mi.warp.square_to_cosine_hemisphere(sample)
+    raise ValueError("strategy=%r: must be one of %s" % (strategy, ", ".join(HEMISPHERE_STRATEGIES)))
+
+
+def hemisphere_pdf(strategy, d):
+    if strategy == "uniform":
+        return mi.warp.square_to_uniform_hemisphere_pdf(d)
+    return mi.warp.square_to_cosine_hemisphere_pdf(d)
