@@ -5,4 +5,5 @@
 """
 
 PLUGINS = {
+    "phong": "phong:PhongBSDF",
 }

@@ -53,3 +53,15 @@ def hemisphere_pdf(strategy, d):
     if strategy == "uniform":
         return mi.warp.square_to_uniform_hemisphere_pdf(d)
     return mi.warp.square_to_cosine_hemisphere_pdf(d)
+
+
+def square_to_power_cosine_hemisphere(sample, exponent):
+    """Direction around +z with density (n + 1)/(2 pi) cos^n(theta) (Phong lobe)."""
+    cos_theta = dr.power(sample.x, 1.0 / (exponent + 1.0))
+    sin_theta = dr.safe_sqrt(1.0 - cos_theta * cos_theta)
+    sin_phi, cos_phi = dr.sincos(dr.two_pi * sample.y)
+    return mi.Vector3f(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
+
+
+def square_to_power_cosine_hemisphere_pdf(d, exponent):
+    return (exponent + 1.0) * dr.inv_two_pi * dr.power(dr.maximum(d.z, 0.0), exponent)

@@ -118,7 +118,9 @@ class AnalyticCase:
 
     def scene(self, integrator=None, sampler=None):
         """Load the case as a mi.Scene (default integrator: Mitsuba's ``path``)."""
-        return mi.load_dict(self.scene_dict(integrator or {"type": "path"}, sampler))
+        # optimize=False: Mitsuba 3.9's load_dict merges identical plugin dicts, which would
+        # attach one Python emitter instance to several shapes (an error).
+        return mi.load_dict(self.scene_dict(integrator or {"type": "path"}, sampler), optimize=False)
 
     # ------------------------------------------------------------------ exact values
     def exact_constant(self, max_depth=-1):

@@ -36,7 +36,7 @@ class IntegratorSpec:
 #: sphere from points on the sphere itself over-estimates each bounce by about 0.14 %.
 SPHERE_NEE_FINDING = ("Mitsuba's analytic-sphere emitter sampling from points on the sphere itself "
                       "over-estimates direct light by ~0.14 % per bounce (README: Findings)")
-_SPHERE_NEE = {"furnace_sphere": SPHERE_NEE_FINDING}
+_SPHERE_NEE = {"furnace_sphere": SPHERE_NEE_FINDING, "constant_brdf_diffuse_sphere": SPHERE_NEE_FINDING}
 
 INTEGRATORS = {
     "path": IntegratorSpec({"type": "path"}, known_failures=dict(_SPHERE_NEE)),

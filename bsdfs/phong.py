@@ -1,0 +1,139 @@
+"""``phong``: the modified Phong BSDF of Lafortune and Willems.
+
+    f(wi, wo) = kd / pi + ks (n + 2) / (2 pi) cos^n(alpha),
+
+alpha being the angle between ``wo`` and the mirror direction of ``wi``. The
+normalisation keeps the albedo at most kd + ks <= 1 (energy conserving), and f is
+reciprocal. It is the specular BSDF of the analytic-scenes paper's results.
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - diffuse_reflectance
+     - float, RGB or texture, >= 0
+     - 0.5
+     - kd.
+   * - specular_reflectance
+     - float, RGB or texture, >= 0
+     - 0.2
+     - ks; kd + ks <= 1 in every channel (checked).
+   * - exponent
+     - float >= 0
+     - 10
+     - n, the Phong exponent.
+
+Sampling: the lobe is chosen with probability proportional to the mean of kd and
+of ks at the point; the diffuse lobe is sampled cosine-weighted, the specular lobe
+by cos^n around the mirror direction (pdf (n + 1)/(2 pi) cos^n alpha); directions
+below the surface are rejected (zero weight). ``pdf``/``eval_pdf`` return the
+matching mixture density, so MIS weights are consistent with ``sample``.
+"""
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins.sampling import square_to_power_cosine_hemisphere
+from mi_plugins.textures import texture_max, texture_min, texture_param
+
+
+def _reflect(wi):
+    return mi.Vector3f(-wi.x, -wi.y, wi.z)
+
+
+def _mean(c):
+    return (c[0] + c[1] + c[2]) / 3.0
+
+
+class PhongBSDF(mi.BSDF):
+    def __init__(self, props):
+        super().__init__(props)
+        self.kd = texture_param(props, "diffuse_reflectance", 0.5, "phong")
+        self.ks = texture_param(props, "specular_reflectance", 0.2, "phong")
+        self.exponent = float(props.get("exponent", 10.0))
+        if not self.exponent >= 0:
+            raise ValueError("phong: exponent=%r must be >= 0" % (self.exponent,))
+        if texture_min(self.kd) < 0 or texture_min(self.ks) < 0:
+            raise ValueError("phong: diffuse_reflectance and specular_reflectance must be >= 0")
+        total = texture_max(self._sum_texture())
+        if total > 1.0 + 1e-6:
+            raise ValueError("phong: diffuse_reflectance + specular_reflectance reaches %.4g; it must be <= 1 "
+                             "in every channel for an energy-conserving BSDF" % total)
+        self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
+                             mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
+        self.m_flags = self.m_components[0] | self.m_components[1]
+
+    def _sum_texture(self):
+        """kd + ks as one texture (for the energy check only)."""
+        class _Sum:
+            def __init__(s, a, b):
+                s.a, s.b = a, b
+
+            def max(s):
+                raise NotImplementedError
+
+            def eval(s, si):
+                return s.a.eval(si) + s.b.eval(si)
+        return _Sum(self.kd, self.ks)
+
+    # ------------------------------------------------------------ helpers
+    def _lobes(self, si, active):
+        kd, ks = self.kd.eval(si, active), self.ks.eval(si, active)
+        wd, ws = _mean(kd), _mean(ks)
+        p_diffuse = dr.select(wd + ws > 0, wd / (wd + ws), 1.0)
+        return kd, ks, p_diffuse
+
+    def _specular_cos(self, wi, wo):
+        return dr.maximum(dr.dot(_reflect(wi), wo), 0.0)
+
+    def _value_and_pdf(self, si, wo, active):
+        wi = si.wi
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+        kd, ks, p_diffuse = self._lobes(si, active)
+        n = self.exponent
+        cos_alpha_n = dr.power(self._specular_cos(wi, wo), n) if n > 0 else dr.ones(mi.Float, dr.width(wo))
+        cos_o = mi.Frame3f.cos_theta(wo)
+        value = (kd * dr.inv_pi + ks * ((n + 2) * dr.inv_two_pi) * cos_alpha_n) * cos_o
+        pdf = p_diffuse * cos_o * dr.inv_pi + (1 - p_diffuse) * ((n + 1) * dr.inv_two_pi) * cos_alpha_n
+        return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+
+    # ------------------------------------------------------------ BSDF interface
+    def eval(self, ctx, si, wo, active=True):
+        return self._value_and_pdf(si, wo, active)[0]
+
+    def pdf(self, ctx, si, wo, active=True):
+        return self._value_and_pdf(si, wo, active)[1]
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self._value_and_pdf(si, wo, active)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
+        _, _, p_diffuse = self._lobes(si, active)
+        choose_diffuse = sample1 < p_diffuse
+        wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
+        lobe_local = square_to_power_cosine_hemisphere(sample2, self.exponent)
+        wo_specular = mi.Frame3f(_reflect(si.wi)).to_world(lobe_local)
+        wo = dr.select(choose_diffuse, wo_diffuse, wo_specular)
+        value, pdf = self._value_and_pdf(si, wo, active)
+        active &= pdf > 0
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = wo
+        bs.pdf = dr.select(active, pdf, 0.0)
+        bs.eta = 1.0
+        bs.sampled_type = mi.UInt32(dr.select(choose_diffuse, mi.UInt32(+mi.BSDFFlags.DiffuseReflection),
+                                              mi.UInt32(+mi.BSDFFlags.GlossyReflection)))
+        bs.sampled_component = dr.select(choose_diffuse, mi.UInt32(0), mi.UInt32(1))
+        return bs, dr.select(active, value / dr.select(active, pdf, 1.0), 0.0)
+
+    def eval_diffuse_reflectance(self, si, active=True):
+        return self.kd.eval(si, active)
+
+    def traverse(self, callback):
+        callback.put("exponent", self.exponent, mi.ParamFlags.NonDifferentiable)
+
+    def to_string(self):
+        return "PhongBSDF[diffuse_reflectance=%s, specular_reflectance=%s, exponent=%g]" % (
+            self.kd, self.ks, self.exponent)
