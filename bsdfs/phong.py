@@ -85,15 +85,13 @@ class PhongBSDF(mi.BSDF):
         p_diffuse = dr.select(wd + ws > 0, wd / (wd + ws), 1.0)
         return kd, ks, p_diffuse
 
-    def _specular_cos(self, wi, wo):
-        return dr.maximum(dr.dot(_reflect(wi), wo), 0.0)
-
     def _value_and_pdf(self, si, wo, active):
         wi = si.wi
         active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
         kd, ks, p_diffuse = self._lobes(si, active)
         n = self.exponent
-        cos_alpha_n = dr.power(self._specular_cos(wi, wo), n) if n > 0 else dr.ones(mi.Float, dr.width(wo))
+        cos_alpha = dr.dot(_reflect(wi), wo)
+        cos_alpha_n = dr.select(cos_alpha > 0, dr.power(dr.maximum(cos_alpha, 0.0), n), 0.0)
         cos_o = mi.Frame3f.cos_theta(wo)
         value = (kd * dr.inv_pi + ks * ((n + 2) * dr.inv_two_pi) * cos_alpha_n) * cos_o
         pdf = p_diffuse * cos_o * dr.inv_pi + (1 - p_diffuse) * ((n + 1) * dr.inv_two_pi) * cos_alpha_n

@@ -49,7 +49,7 @@ ESTIMATORS = ("uniform", "cosine", "bsdf")
 
 
 def _target_radiance(props):
-    if not props.has_property("target_radiance"):
+    if not "target_radiance" in props:
         raise ValueError("simulated_area: parameter 'target_radiance' (L~, float or RGB > 0) is required")
     value = props.get("target_radiance")
     try:
@@ -72,7 +72,7 @@ class SimulatedAreaEmitter(SurfaceEmitter):
         if self.estimator not in ESTIMATORS:
             raise ValueError("simulated_area: estimator=%r must be one of %s"
                              % (self.estimator, ", ".join(ESTIMATORS)))
-        self.salt = Salt(start=hash(props.id()) & 0xFFFF if props.id() else 0)
+        self.salt = Salt()
 
     def _bsdf(self):
         bsdf = self._shape().bsdf()
@@ -96,8 +96,10 @@ class SimulatedAreaEmitter(SurfaceEmitter):
                 total += dr.select(active & (bs.pdf > 0), weight, 0.0)
             else:
                 d = sample_hemisphere(self.estimator, u2)
-                value = bsdf.eval(ctx, query, d, active)
-                total += dr.select(active, value / hemisphere_pdf(self.estimator, d), 0.0)
+                pdf = hemisphere_pdf(self.estimator, d)
+                valid = active & (pdf > 0)  # cosine sampling can return grazing d with pdf 0
+                value = bsdf.eval(ctx, query, d, valid)
+                total += dr.select(valid, value / dr.select(valid, pdf, 1.0), 0.0)
         return total / self.samples
 
     def radiance(self, si, wo, active):

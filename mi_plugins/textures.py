@@ -6,7 +6,7 @@ import numpy as np
 
 def texture_param(props, name, default, plugin):
     """Return a mi.Texture for parameter ``name`` (floats become uniform textures)."""
-    if not props.has_property(name):
+    if name not in props:
         value = default
     else:
         value = props.get(name)

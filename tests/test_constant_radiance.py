@@ -1,0 +1,65 @@
+"""Constant-radiance cases (paper section 2.1 and 4) with Mitsuba's own integrators."""
+import numpy as np
+import pytest
+
+from mi_plugins import analytic
+from mi_plugins.analytic import constant_radiance as cr
+from mi_plugins.analytic.harness import compare, render_runs
+
+RES = 16
+BSDFS = {
+    "diffuse": ({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]}}, "uniform"),
+    "phong": (cr.PAPER_PHONG, "uniform"),
+    "roughconductor": ({"type": "roughconductor", "alpha": 0.3}, "bsdf"),
+    "roughplastic": ({"type": "roughplastic", "alpha": 0.2}, "cosine"),
+}
+
+
+@pytest.mark.parametrize("integrator", ["path", "ptracer", "volpath"])
+@pytest.mark.parametrize("bsdf_name, geometry", [("diffuse", "sphere_mesh"), ("phong", "sierpinski"),
+                                                 ("roughconductor", "box"), ("roughplastic", "sphere_mesh"),
+                                                 ("phong", "sphere")])
+def test_builtin_integrators_see_constant_radiance(bsdf_name, geometry, integrator):
+    bsdf, estimator = BSDFS[bsdf_name]
+    case = analytic.constant_radiance_brdf(bsdf, [1.0, 2.0, 0.5], geometry, estimator=estimator, resolution=RES)
+    res = analytic.check(case, integrator, spp=64 if integrator == "ptracer" else 32, runs=8, seed=1)
+    assert res.passed, res
+
+
+@pytest.mark.parametrize("factory", [cr.sierpinski_diffuse_exact, cr.sierpinski_diffuse_simulated,
+                                     cr.sierpinski_phong_simulated])
+def test_paper_section4_cases(factory):
+    case = factory(resolution=RES)
+    assert np.allclose(case.expected(), 1.0)
+    assert analytic.check(case, "path", spp=32, runs=8).passed
+
+
+def test_wrong_albedo_in_the_emission_is_caught():
+    """A simulated emitter for the wrong BSDF (albedo 0.47 vs surfaces of 0.5) must fail."""
+    right = cr.sierpinski_diffuse_simulated(resolution=RES)
+    scene_dict = right.scene_dict("path")
+    for key in ("walls", "sierpinski"):
+        scene_dict[key]["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}
+        scene_dict[key]["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": 0.53}}
+    import mitsuba as mi
+    images = render_runs(mi.load_dict(scene_dict, optimize=False), 32, 8, 0)
+    out = compare(images, right.expected())
+    assert not out["passed"] and out["mean"] > 1.04   # 0.53 / 0.5 = 1.06
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(target_radiance=0.0), "target_radiance=0.0 is outside"),
+    (dict(bsdf="diffuse"), "bsdf='diffuse': must be a Mitsuba BSDF dict"),
+    (dict(geometry="cone"), "geometry='cone'"),
+])
+def test_bad_arguments(kwargs, message):
+    args = dict(bsdf={"type": "diffuse"}, target_radiance=1.0, geometry="box")
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=message):
+        analytic.constant_radiance_brdf(**args)
+
+
+def test_truncated_depths_have_no_closed_form():
+    case = cr.sierpinski_phong_simulated(resolution=RES)
+    with pytest.raises(ValueError, match="only max_depth=-1"):
+        case.expected(3)
