@@ -6,6 +6,7 @@
 
 PLUGINS = {
     "simulated_area": "simulated_area:SimulatedAreaEmitter",
+    "directional_area": "directional_area:DirectionalAreaEmitter",
 }
 
 #: modules holding base classes of the plugins above (reloaded first on a variant switch)

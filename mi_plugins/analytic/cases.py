@@ -231,7 +231,25 @@ def diffuse_sphere(albedo=0.5, emission=None, radius=1.0, resolution=32, geometr
                              % (albedo, np.array2string(mean, precision=4)))
 
 
-class MirrorSphereCase(ConstantCase):
+class MirrorSphereCase(AnalyticCase):
+    """Inside an emitting ideal mirror sphere: L(theta) = Le(theta) * sum_{j<D} k^j."""
+
+    def __init__(self, name, surfaces, camera, reflectance, diffuse_emission=None, **kw):
+        super().__init__(name, surfaces, camera, **kw)
+        self.reflectance = reflectance
+        self.diffuse_emission = diffuse_emission
+
+    def exact_constant(self, max_depth=-1):
+        if self.diffuse_emission is None:
+            return None
+        return self.diffuse_emission * truncated_geometric(self.reflectance, max_depth)
+
+    def exact_at(self, si, ray, max_depth, scene):
+        # The emission leaving the hit towards the camera, at the angle theta it has there;
+        # each mirror bounce returns the same angle (paper section 3.2).
+        le = si.emitter(scene).eval(si)
+        return le * mi.Color3f(*[float(v) for v in truncated_geometric(self.reflectance, max_depth)])
+
     def not_applicable(self, integrator):
         if integrator.get("type") == "ptracer":
             return ("a light tracer cannot connect light paths to a pinhole camera through an ideal "
@@ -240,16 +258,26 @@ class MirrorSphereCase(ConstantCase):
 
 
 def mirror_sphere(reflectance=0.5, emission=0.5, resolution=32):
-    """Inside an ideal mirror sphere of reflectance k that also emits diffusely Le:
-    L = Le / (1 - k) (paper section 3.2)."""
+    """Inside an ideal mirror sphere of reflectance k that also emits: L = Le / (1 - k)
+    (paper section 3.2). ``emission``: a float/RGB (diffuse emission), or the dict of an
+    isotropic ``directional_area`` emitter (Le(theta)): then L(theta) = Le(theta) / (1 - k),
+    varying over the image because the camera is off-centre."""
     k = require_range(reflectance, "reflectance", 0.0, 1.0, hi_open=True,
                       what="range of contractive mirror reflectances")
-    le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
     bsdf = {"type": "conductor", "material": "none", "specular_reflectance": rgb_dict(k)}
+    if isinstance(emission, dict):
+        if emission.get("type") != "directional_area":
+            raise ValueError("emission=%r: a dict must describe a 'directional_area' emitter" % (emission,))
+        surfaces = closed_surfaces("sphere", bsdf, emission)
+        label = "%s profile" % emission.get("profile", "cosine_power")
+        return MirrorSphereCase("mirror_sphere_directional", surfaces, camera_for("sphere"), k,
+                                resolution=resolution, params=dict(reflectance=reflectance, emission=emission),
+                                description="ideal mirror k = %s, emission %s: L(theta) = Le(theta)/(1-k)"
+                                % (reflectance, label))
+    le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
     surfaces = closed_surfaces("sphere", bsdf, {"type": "area", "radiance": rgb_dict(le)})
-    return MirrorSphereCase("mirror_sphere", surfaces, camera_for("sphere"),
-                            lambda d: le * truncated_geometric(k, d), resolution=resolution,
-                            params=dict(reflectance=reflectance, emission=emission),
+    return MirrorSphereCase("mirror_sphere", surfaces, camera_for("sphere"), k, diffuse_emission=le,
+                            resolution=resolution, params=dict(reflectance=reflectance, emission=emission),
                             description="ideal mirror k = %s, emission %s: L = Le/(1-k)" % (reflectance, emission))
 
 
@@ -266,6 +294,9 @@ MATRIX_CASES = {
     "diffuse_sphere": lambda **kw: diffuse_sphere(0.5, **kw),
     "diffuse_sphere_mesh": lambda **kw: diffuse_sphere(0.5, geometry="sphere_mesh", **kw),
     "mirror_sphere": lambda **kw: mirror_sphere(0.5, 0.5, **kw),
+    "mirror_sphere_cos4": lambda **kw: mirror_sphere(
+        0.6, {"type": "directional_area", "profile": "cosine_power", "exponent": 4.0,
+              "radiance": {"type": "rgb", "value": [0.8, 0.5, 0.3]}}, **kw),
 }
 
 #: the subset of `mi-plugins verify --quick`

@@ -48,5 +48,7 @@ def export_all(directory, names=None):
     for name, factory in all_cases().items():
         if names and name not in names:
             continue
-        written.append(export_case(factory(), os.path.join(directory, name + ".xml")))
+        case = factory()
+        case.name = name  # the key users pass to analytic.cases()
+        written.append(export_case(case, os.path.join(directory, name + ".xml")))
     return written

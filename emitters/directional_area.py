@@ -1,0 +1,170 @@
+"""``directional_area``: an area light with direction-dependent emission.
+
+    Le(x, w) = radiance(x) * profile(cos theta),
+
+theta being the angle between w and the surface normal. Used to test non-diffuse
+light sources (the analytic-scenes paper, sections 2.2 and 3.2).
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - radiance
+     - float, RGB or texture, >= 0
+     - 1.0
+     - Spatial factor radiance(x).
+   * - profile
+     - 'cosine_power' | 'tabulated'
+     - 'cosine_power'
+     - Angular factor: cos^n(theta), or a table.
+   * - exponent
+     - float >= 0
+     - 1.0
+     - n of 'cosine_power' (n = 0 is a diffuse emitter).
+   * - values
+     - comma-separated floats >= 0 (at least 2)
+     - (required for 'tabulated')
+     - profile(theta) sampled uniformly in theta over [0, pi/2], linearly interpolated.
+
+Emission directions for light tracing are importance sampled with density
+proportional to profile * cos (exactly for 'cosine_power', via a fine piecewise-
+linear table for 'tabulated'; weights use the density actually sampled, so both are
+unbiased). :meth:`hemispherical_integral` returns the exact integral of
+profile * cos over the hemisphere, :meth:`total_power` the exact emitted power
+(radiance must be uniform; for textures it is estimated numerically).
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.emitters.surface_emitter import SurfaceEmitter
+from mi_plugins.sampling import square_to_power_cosine_hemisphere, square_to_power_cosine_hemisphere_pdf
+from mi_plugins.textures import texture_min, texture_param
+
+PROFILES = ("cosine_power", "tabulated")
+_TABLE_RESOLUTION = 2048
+
+
+def _parse_values(value):
+    if isinstance(value, str):
+        items = [v for v in value.replace(",", " ").split() if v]
+    else:
+        items = list(value)
+    try:
+        return np.array([float(v) for v in items], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("directional_area: values=%r must be a list of floats" % (value,)) from None
+
+
+def tabulated_hemispherical_integral(values):
+    """Exact 2 pi * integral_0^{pi/2} p(theta) cos(theta) sin(theta) dtheta for p piecewise
+    linear in theta on a uniform grid."""
+    k = len(values) - 1
+    t = np.linspace(0.0, np.pi / 2, k + 1)
+    total = 0.0
+    for i in range(k):
+        t0, t1, p0, p1 = t[i], t[i + 1], values[i], values[i + 1]
+        b = (p1 - p0) / (t1 - t0)
+        a = p0 - b * t0
+        # integral of (a + b t) sin(2t)/2 dt = -a cos(2t)/4 + b (-t cos(2t)/4 + sin(2t)/8)
+        prim = lambda x: -a * np.cos(2 * x) / 4 + b * (-x * np.cos(2 * x) / 4 + np.sin(2 * x) / 8)
+        total += prim(t1) - prim(t0)
+    return 2 * np.pi * total
+
+
+class DirectionalAreaEmitter(SurfaceEmitter):
+    def __init__(self, props):
+        super().__init__(props)
+        self.radiance_texture = texture_param(props, "radiance", 1.0, "directional_area")
+        if texture_min(self.radiance_texture) < 0:
+            raise ValueError("directional_area: radiance must be >= 0")
+        self.profile = props.get("profile", "cosine_power")
+        if self.profile not in PROFILES:
+            raise ValueError("directional_area: profile=%r must be one of %s" % (self.profile, ", ".join(PROFILES)))
+        if self.profile == "cosine_power":
+            self.exponent = float(props.get("exponent", 1.0))
+            if not self.exponent >= 0:
+                raise ValueError("directional_area: exponent=%r must be >= 0" % (self.exponent,))
+            self.values = None
+        else:
+            if "values" not in props:
+                raise ValueError("directional_area: profile='tabulated' needs 'values' (profile samples over "
+                                 "theta in [0, pi/2])")
+            self.values = _parse_values(props.get("values"))
+            if len(self.values) < 2 or np.any(self.values < 0) or not np.all(np.isfinite(self.values)):
+                raise ValueError("directional_area: values=%s must hold at least 2 finite values >= 0"
+                                 % (self.values.tolist(),))
+            self._table = mi.Float(self.values)
+            theta = np.linspace(0, np.pi / 2, _TABLE_RESOLUTION + 1)
+            density = np.interp(theta, np.linspace(0, np.pi / 2, len(self.values)), self.values) \
+                * np.cos(theta) * np.sin(theta)
+            if density.sum() <= 0:
+                raise ValueError("directional_area: values=%s emit nothing" % (self.values.tolist(),))
+            self._theta_distribution = mi.ContinuousDistribution(mi.ScalarVector2f(0, np.pi / 2),
+                                                                 mi.Float(density))
+
+    # ----------------------------------------------------------- the profile
+    def profile_value(self, cos_theta):
+        """profile(cos theta) (Float)."""
+        if self.profile == "cosine_power":
+            return dr.power(dr.maximum(cos_theta, 0.0), self.exponent)
+        theta = dr.acos(dr.clip(cos_theta, 0.0, 1.0))
+        pos = theta / (dr.pi / 2) * (len(self.values) - 1)
+        i = mi.UInt32(dr.minimum(dr.floor(pos), len(self.values) - 2))
+        f = pos - mi.Float(i)
+        v0 = dr.gather(mi.Float, self._table, i)
+        v1 = dr.gather(mi.Float, self._table, i + 1)
+        return dr.fma(f, v1 - v0, v0)
+
+    def hemispherical_integral(self):
+        """Exact integral of profile(cos theta) cos(theta) over the hemisphere."""
+        if self.profile == "cosine_power":
+            return 2 * np.pi / (self.exponent + 2)
+        return float(tabulated_hemispherical_integral(self.values))
+
+    def total_power(self, samples=1 << 20):
+        """Emitted power (RGB numpy): exact for uniform radiance, else estimated with
+        ``samples`` area-uniform positions."""
+        shape = self._shape()
+        area = shape.surface_area()
+        area = float(area[0]) if hasattr(area, "__len__") else float(area)
+        if not self.radiance_texture.is_spatially_varying():
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            mean = np.array(self.radiance_texture.eval(si)).ravel()[:3]
+        else:
+            rng = np.random.default_rng(0)
+            ps = shape.sample_position(0.0, mi.Point2f(rng.random(samples), rng.random(samples)))
+            si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+            mean = np.array(self.radiance_texture.eval(si)).reshape(3, -1).mean(axis=1)
+        return mean * area * self.hemispherical_integral()
+
+    # ----------------------------------------------------------- SurfaceEmitter interface
+    def radiance(self, si, wo, active):
+        return self.radiance_texture.eval(si, active) * self.profile_value(mi.Frame3f.cos_theta(wo))
+
+    def sample_outgoing(self, si, sample, active):
+        if self.profile == "cosine_power":
+            wo = square_to_power_cosine_hemisphere(sample, self.exponent + 1.0)
+            return wo, square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
+        theta, pdf_theta = self._theta_distribution.sample_pdf(sample.x)
+        sin_t, cos_t = dr.sincos(theta)
+        sin_p, cos_p = dr.sincos(dr.two_pi * sample.y)
+        wo = mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
+        return wo, dr.select(sin_t > 0, pdf_theta / (dr.two_pi * sin_t), 0.0)
+
+    def pdf_outgoing(self, wo):
+        """Density (solid angle) of :meth:`sample_outgoing` at local direction ``wo``."""
+        if self.profile == "cosine_power":
+            return square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
+        theta = dr.acos(dr.clip(mi.Frame3f.cos_theta(wo), 0.0, 1.0))
+        sin_t = dr.sin(theta)
+        pdf_theta = self._theta_distribution.eval_pdf_normalized(theta)
+        return dr.select((sin_t > 0) & (wo.z > 0), pdf_theta / (dr.two_pi * sin_t), 0.0)
+
+    def to_string(self):
+        detail = ("exponent=%g" % self.exponent) if self.profile == "cosine_power" else \
+            ("values=%s" % self.values.tolist())
+        return "DirectionalAreaEmitter[profile=%s, %s]" % (self.profile, detail)
