@@ -6,4 +6,5 @@
 
 PLUGINS = {
     "phong": "phong:PhongBSDF",
+    "separable": "separable:SeparableBSDF",
 }

@@ -77,6 +77,9 @@ class _Writer:
     def plugin(self, key, d, indent, parent_kind):
         pad = "    " * indent
         t = d["type"]
+        if t == "ref":
+            self.lines.append('%s<ref name=%s id=%s/>' % (pad, quoteattr(key), quoteattr(d["id"])))
+            return
         if t == "rgb":
             v = d["value"]
             v = [v] * 3 if isinstance(v, (int, float)) else v
@@ -86,6 +89,8 @@ class _Writer:
         attrs = ' type=%s' % quoteattr(t)
         if kind == "shape":
             attrs += ' id=%s' % quoteattr(key)
+        elif "id" in d:
+            attrs += ' id=%s' % quoteattr(d["id"])
         elif kind == "texture" or (kind in ("bsdf", "emitter") and key not in _KIND_BY_KEY):
             attrs += ' name=%s' % quoteattr(key)
         if t == "ply" and "filename" in d:

@@ -63,3 +63,40 @@ def test_truncated_depths_have_no_closed_form():
     case = cr.sierpinski_phong_simulated(resolution=RES)
     with pytest.raises(ValueError, match="only max_depth=-1"):
         case.expected(3)
+
+
+@pytest.mark.parametrize("integrator", ["path", "ptracer", "volpath"])
+@pytest.mark.parametrize("name", ["constant_lightsource_sierpinski", "constant_lightsource_box"])
+def test_lightsource_testing_cases(name, integrator):
+    case = analytic.cases()[name](resolution=RES)
+    res = analytic.check(case, integrator, spp=64 if integrator == "ptracer" else 32, runs=8, seed=2)
+    assert res.passed, res
+
+
+def test_finding_simulated_normalization_is_biased_high():
+    """Finding (README): the paper's 'simulated' normalization of the separable BSDF is
+    biased (Jensen, 1/X): with M = 16 and Le = 0.8 cos^2 on the mesh sphere, L = 1.04
+    instead of 1; the 'exact' normalization passes the same check."""
+    lamp = {"type": "directional_area", "exponent": 2.0, "radiance": 0.8}
+    emitters = {"sphere_0": dict(lamp), "sphere_1": dict(lamp)}
+    exact = analytic.constant_radiance_lightsource(emitters, 1.0, "sphere_mesh", resolution=RES)
+    assert analytic.check(exact, "path", spp=32, runs=8).passed
+    simulated = analytic.constant_radiance_lightsource(emitters, 1.0, "sphere_mesh", normalization="simulated",
+                                                       resolution=RES)
+    res = analytic.check(simulated, "path", spp=128, runs=8)
+    assert not res.passed and 0.02 < res.mean - 1.0 < 0.06, res
+
+
+def test_lightsource_with_a_mismatched_target_fails():
+    """Separable BSDFs built for L~ = 2.2 over emitters for L~ = 2: the check must fail."""
+    case = analytic.cases()["constant_lightsource_box"](resolution=RES)
+    wrong = analytic.constant_radiance_lightsource(
+        {"walls_1": {"type": "directional_area", "exponent": 1.0, "radiance": {"type": "rgb", "value": 1.2}}},
+        1.65, "box", resolution=RES)
+    images = render_runs(wrong.scene("path"), 32, 8, 0)
+    assert not compare(images, case.expected())["passed"]
+
+
+def test_lightsource_unknown_surface():
+    with pytest.raises(ValueError, match="unknown surface"):
+        analytic.constant_radiance_lightsource({"ceiling": {"type": "directional_area"}}, 2.0, "box")

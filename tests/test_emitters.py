@@ -16,7 +16,15 @@ BSDFS = {
 }
 
 
-_keep_alive = []
+_keep_alive = []  # scenes a test keeps alive (emitters hold weak pointers to their shapes)
+
+
+@pytest.fixture(autouse=True)
+def _release_scenes():
+    yield
+    import gc
+    _keep_alive.clear()  # Dr.Jit traces every live emitter instance in each render
+    gc.collect()
 
 
 def emitter_on(bsdf, estimator, samples=1, target=2.0):

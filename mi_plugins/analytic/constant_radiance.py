@@ -77,3 +77,64 @@ QUICK_CASES = ("sierpinski_phong_simulated",)
 
 __all__ = ["constant_radiance_brdf", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated",
            "sierpinski_phong_simulated"]
+
+
+def constant_radiance_lightsource(emitters, target_radiance=2.0, geometry="sierpinski", normalization="exact",
+                                  resolution=32, name=None):
+    """Lightsource testing (paper section 2.2): every surface gets a ``separable`` BSDF
+    for target L~; the surfaces named in ``emitters`` ({surface: directional_area dict})
+    emit, the others do not: the exact radiance is L~ everywhere.
+
+    Surface names are those of ``mi_plugins.geometry.surfaces(geometry, pattern=True)``:
+    e.g. 'walls_0', 'walls_1', 'sierpinski_0', 'sierpinski_1' (alternating cells), or
+    'sphere' for the analytic sphere.
+    """
+    target = require_range(target_radiance, "target_radiance", 0.0, None, lo_open=True,
+                           what="range of target radiances")
+    surfaces = _geometry_surfaces(geometry)
+    unknown = sorted(set(emitters) - set(surfaces))
+    if unknown:
+        raise ValueError("emitters: unknown surface(s) %s of geometry %r; its surfaces are %s"
+                         % (", ".join(unknown), geometry, ", ".join(sorted(surfaces))))
+    for key, shape in surfaces.items():
+        bsdf = {"type": "separable", "target_radiance": rgb_dict(target), "normalization": normalization}
+        if key in emitters:
+            emitter = dict(emitters[key])
+            if emitter.get("type") != "directional_area":
+                raise ValueError("emitters[%r]: must be a 'directional_area' dict" % key)
+            emitter["id"] = key + "_emission"
+            shape["emitter"] = emitter
+            bsdf["emission"] = {"type": "ref", "id": emitter["id"]}
+        shape["bsdf"] = bsdf
+    return ConstantCase(name or "constant_lightsource_%s" % geometry, surfaces, camera_for(geometry),
+                        lambda d: _constant_only(target, d), truncation_exact=False, resolution=resolution,
+                        params=dict(emitters=sorted(emitters), target_radiance=target_radiance, geometry=geometry,
+                                    normalization=normalization),
+                        description="separable BSDFs, directional emitters on %s: L = L~" % ", ".join(sorted(emitters)))
+
+
+def _geometry_surfaces(geometry):
+    from .. import geometry as geo
+    if geometry == "sphere":
+        return geo.surfaces("sphere")
+    return geo.surfaces(geometry, pattern=True)
+
+
+def _lightsource_sierpinski(**kw):
+    return constant_radiance_lightsource(
+        {"walls_0": {"type": "directional_area", "profile": "cosine_power", "exponent": 3.0,
+                     "radiance": {"type": "rgb", "value": [1.5, 1.0, 0.5]}},
+         "sierpinski_1": {"type": "directional_area", "profile": "tabulated", "values": "0.2, 1.2, 1.8, 0.4",
+                          "radiance": {"type": "rgb", "value": [0.6, 0.9, 1.0]}}},
+        2.0, "sierpinski", **kw)
+
+
+def _lightsource_box(**kw):
+    return constant_radiance_lightsource(
+        {"walls_1": {"type": "directional_area", "exponent": 1.0, "radiance": {"type": "rgb", "value": 1.2}}},
+        1.5, "box", **kw)
+
+
+MATRIX_CASES["constant_lightsource_sierpinski"] = _lightsource_sierpinski
+MATRIX_CASES["constant_lightsource_box"] = _lightsource_box
+__all__.append("constant_radiance_lightsource")

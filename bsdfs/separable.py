@@ -1,0 +1,172 @@
+"""``separable``: the symmetric separable BSDF of lightsource testing.
+
+Implements section 2.2 (eq. 9) of the analytic-scenes paper: for a surface with
+emission Le(x, w) and a target radiance L~ > max Le,
+
+    f(w', w) = (L~ - Le(w)) (L~ - Le(w')) / (L~ * D),   D = integral (L~ - Le) cos dw
+                                                          = pi L~ - integral Le cos dw,
+
+has albedo a(w) = 1 - Le(w)/L~, so a closed scene made of such surfaces has
+radiance L~ everywhere, whatever the (isotropic) emission profiles are. A surface
+without emission gets f = 1/pi (albedo 1).
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - target_radiance
+     - float or RGB > 0
+     - (required)
+     - L~; must exceed the maximum emission of the surface (checked).
+   * - emission
+     - reference to a ``directional_area`` emitter
+     - none (no emission: f = 1/pi)
+     - THE emitter of the shape this BSDF sits on, by reference: ``<ref name="emission"
+       id="..."/>`` in XML, ``{'type': 'ref', 'id': ...}`` or the same emitter object in
+       a dict. The BSDF checks that this emitter is attached to a shape whose BSDF is this
+       BSDF, so it always uses exactly the emission of its surface.
+   * - normalization
+     - 'exact' | 'simulated'
+     - 'exact'
+     - D from the emitter's exact integral, or the paper's random estimate
+       pi (L~ - (2/M) sum Le(w_i) cos(theta_i)) with M uniform directions per evaluation.
+   * - samples
+     - int >= 1
+     - 16
+     - M for 'simulated'.
+
+Sampling is cosine-weighted (as in the paper); ``pdf`` matches it.
+Note on 'simulated': the paper's estimator puts a random quantity in the
+denominator, so its mean is not exactly eq. 9 (Jensen's inequality); the bias is
+O(Var/M) and is measured in the tests and the README.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.sampling import Salt, hashed_rng
+from mi_plugins.textures import texture_max
+
+NORMALIZATIONS = ("exact", "simulated")
+
+
+def _rgb_param(props, name, plugin):
+    value = props.get(name)
+    try:
+        return np.array([float(value)] * 3)
+    except TypeError:
+        return np.array([float(v) for v in value])
+
+
+class SeparableBSDF(mi.BSDF):
+    def __init__(self, props):
+        super().__init__(props)
+        if "target_radiance" not in props:
+            raise ValueError("separable: parameter 'target_radiance' (L~ > max emission) is required")
+        self.target = _rgb_param(props, "target_radiance", "separable")
+        if np.any(self.target <= 0):
+            raise ValueError("separable: target_radiance=%s must be > 0" % (self.target.tolist(),))
+        self.emission = props.get("emission") if "emission" in props else None
+        if self.emission is not None and not hasattr(self.emission, "hemispherical_integral"):
+            raise ValueError("separable: 'emission' must reference a 'directional_area' emitter (got %s)"
+                             % type(self.emission).__name__)
+        self.normalization = props.get("normalization", "exact")
+        if self.normalization not in NORMALIZATIONS:
+            raise ValueError("separable: normalization=%r must be one of %s"
+                             % (self.normalization, ", ".join(NORMALIZATIONS)))
+        self.samples = props.get("samples", 16)
+        if not isinstance(self.samples, int) or self.samples < 1:
+            raise ValueError("separable: samples=%r must be an integer >= 1" % (self.samples,))
+        if self.emission is not None:
+            max_emission = texture_max(self.emission.radiance_texture) * self._max_profile()
+            if not np.all(self.target > max_emission):
+                raise ValueError("separable: target_radiance=%s must exceed the maximum emission %.6g of the "
+                                 "surface (otherwise the BSDF would be negative)"
+                                 % (self.target.tolist(), max_emission))
+        self._checked = False
+        self.salt = Salt()
+        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        if self.emission is not None:
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [flags]
+        self.m_flags = flags
+
+    def _max_profile(self):
+        e = self.emission
+        return 1.0 if e.profile == "cosine_power" else float(np.max(e.values))
+
+    def _check_binding(self):
+        """The referenced emitter must be the one of the shape that carries this BSDF."""
+        if self._checked or self.emission is None:
+            return
+        shape = self.emission.get_shape()
+        if shape is None or shape.bsdf() is not self:
+            raise ValueError("separable: 'emission' must reference the emitter of the shape this BSDF sits on "
+                             "(<ref name=\"emission\" id=\"...\"/> to that shape's emitter); it is %s"
+                             % ("not attached to any shape" if shape is None
+                                else "attached to shape '%s', which has another BSDF" % shape.id()))
+        self._checked = True
+
+    # ------------------------------------------------------------ the formula
+    def _target(self):
+        return mi.Color3f(*[float(v) for v in self.target])
+
+    def _emission(self, si, d):
+        """Le(x, d) of the surface (Color3f; zero without emission)."""
+        if self.emission is None:
+            return dr.zeros(mi.Color3f, dr.width(d))
+        return self.emission.radiance_texture.eval(si) * self.emission.profile_value(mi.Frame3f.cos_theta(d))
+
+    def _denominator(self, si):
+        """L~ * D, D = pi L~ - integral Le cos (exact or simulated)."""
+        target = self._target()
+        if self.emission is None:
+            return target * target * dr.pi
+        if self.normalization == "exact":
+            integral = self.emission.radiance_texture.eval(si) * self.emission.hemispherical_integral()
+        else:
+            rng = hashed_rng(si, self.salt.next())
+            integral = dr.zeros(mi.Color3f, dr.width(si.p))
+            for _ in range(self.samples):
+                d = mi.warp.square_to_uniform_hemisphere(mi.Point2f(rng.next_float32(), rng.next_float32()))
+                integral += self._emission(si, d) * mi.Frame3f.cos_theta(d) * dr.two_pi
+            integral /= self.samples
+        return target * (dr.pi * target - integral)
+
+    def _f(self, si, wo):
+        target = self._target()
+        return (target - self._emission(si, si.wi)) * (target - self._emission(si, wo)) / self._denominator(si)
+
+    # ------------------------------------------------------------ BSDF interface
+    def eval(self, ctx, si, wo, active=True):
+        self._check_binding()
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+        return dr.select(active, self._f(si, wo) * mi.Frame3f.cos_theta(wo), 0.0)
+
+    def pdf(self, ctx, si, wo, active=True):
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+        return dr.select(active, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        self._check_binding()
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
+        wo = mi.warp.square_to_cosine_hemisphere(sample2)
+        pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+        active &= pdf > 0
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo, bs.pdf, bs.eta = wo, dr.select(active, pdf, 0.0), 1.0
+        bs.sampled_type = mi.UInt32(+self.m_flags)
+        bs.sampled_component = mi.UInt32(0)
+        weight = self._f(si, wo) * dr.pi  # f cos / (cos / pi)
+        return bs, dr.select(active, weight, 0.0)
+
+    def to_string(self):
+        return "SeparableBSDF[target_radiance=%s, emission=%s, normalization=%s]" % (
+            self.target.tolist(), "none" if self.emission is None else self.emission.to_string(),
+            self.normalization)
