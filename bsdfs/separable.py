@@ -28,6 +28,8 @@ without emission gets f = 1/pi (albedo 1).
        id="..."/>`` in XML, ``{'type': 'ref', 'id': ...}`` or the same emitter object in
        a dict. The BSDF checks that this emitter is attached to a shape whose BSDF is this
        BSDF, so it always uses exactly the emission of its surface.
+       Conversely, a ``directional_area`` emitter refuses a shape whose ``separable``
+       BSDF does not reference it (e.g. ``emission`` forgotten).
    * - normalization
      - 'exact' | 'simulated'
      - 'exact'

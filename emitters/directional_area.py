@@ -141,8 +141,23 @@ class DirectionalAreaEmitter(SurfaceEmitter):
             mean = np.array(self.radiance_texture.eval(si)).reshape(3, -1).mean(axis=1)
         return mean * area * self.hemispherical_integral()
 
+    def _check_separable_partner(self):
+        """A ``separable`` BSDF on this emitter's shape must reference THIS emitter
+        (otherwise it would silently assume another emission, e.g. none)."""
+        if getattr(self, "_partner_checked", False):
+            return
+        shape = self._shape()
+        bsdf = shape.bsdf()
+        if hasattr(bsdf, "emission") and hasattr(bsdf, "normalization") and bsdf.emission is not self:
+            raise ValueError("directional_area: shape '%s' carries a 'separable' BSDF whose 'emission' does not "
+                             "reference this emitter (%s); add <ref name=\"emission\" id=\"...\"/> to its emitter"
+                             % (shape.id(), "it has no emission" if bsdf.emission is None else
+                                "it references another emitter"))
+        self._partner_checked = True
+
     # ----------------------------------------------------------- SurfaceEmitter interface
     def radiance(self, si, wo, active):
+        self._check_separable_partner()
         return self.radiance_texture.eval(si, active) * self.profile_value(mi.Frame3f.cos_theta(wo))
 
     def sample_outgoing(self, si, sample, active):

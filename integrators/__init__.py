@@ -5,4 +5,5 @@
 """
 
 PLUGINS = {
+    'stochastic_ray': 'stochastic_ray:StochasticRayIntegrator',
 }

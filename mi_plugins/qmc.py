@@ -304,3 +304,84 @@ def points(sequence, n, dims, start=0, scramble=False, seed=0, rotate=False):
     cols = [sample(sequence, index, d, dims=dims, n=n, scramble=scramble, seed=seed, rotate=rotate)
             for d in range(int(dims))]
     return np.stack([np.array(c, dtype=np.float64) for c in cols], axis=1)
+
+
+# --------------------------------------------------------------------------- dynamic dimension
+# Samplers advance their dimension inside symbolic loops, so the dimension is a JIT
+# variable there: these variants take ``dim`` as a mi.UInt32 array.
+@functools.lru_cache(maxsize=None)
+def _halton_tables():
+    """Flat digit tables for dims < MAX_HALTON_DIM: bases, per-dim offsets, Faure perms."""
+    bases = primes(MAX_HALTON_DIM).astype(np.uint32)
+    offsets = np.concatenate([[0], np.cumsum(bases)[:-1]]).astype(np.uint32)
+    faure_perms = np.concatenate([faure_permutation(int(b)) for b in bases]).astype(np.uint32)
+    return bases, offsets, faure_perms
+
+
+def hash_u32(*values):
+    """Vectorised 32-bit hash of UInt32 arrays (and ints)."""
+    h = mi.UInt32(0x9E3779B9)
+    for v in values:
+        h = (h ^ mi.UInt32(v)) * 0x85EBCA6B
+        h ^= h >> 13
+        h *= 0xC2B2AE35
+        h ^= h >> 16
+    return h
+
+
+def _hashed_unit(*values):
+    return _to_unit(hash_u32(*values))
+
+
+def sobol_dynamic(index, dim, scramble_seed=None):
+    """Sobol coordinate for per-lane ``dim`` (UInt32 < MAX_SOBOL_DIM); optional per-lane Owen seed."""
+    table = _sobol_dynamic_table()
+    index = _u32(index)
+    base = dim * 32
+    result = dr.zeros(mi.UInt32, dr.width(index))
+    for k in range(32):
+        v = dr.gather(mi.UInt32, table, base + k)
+        result ^= dr.select(((index >> k) & 1) != 0, v, 0)
+    if scramble_seed is not None:
+        result = owen_scramble(result, scramble_seed)
+    return _to_unit(result)
+
+
+@functools.lru_cache(maxsize=None)
+def _sobol_dynamic_table():
+    return mi.UInt32(_sobol_matrix().ravel())
+
+
+@functools.lru_cache(maxsize=None)
+def _random_permutation_table(seed):
+    """Random digit permutations for every (dim, digit position), flattened: entry
+    [offsets[dim] * 32 + k * base + digit]."""
+    bases, offsets, _ = _halton_tables()
+    tables = [np.concatenate([_random_digit_permutations(int(b), seed, d), np.zeros(
+        (32 - _digits(int(b)), int(b)), dtype=np.int64)]) for d, b in enumerate(bases)]
+    return mi.UInt32(np.concatenate([t.ravel() for t in tables]).astype(np.uint32))
+
+
+def halton_dynamic(index, dim, faure=False, permutation_seed=None):
+    """Halton coordinate for per-lane ``dim`` (UInt32 < MAX_HALTON_DIM): plain, with Faure's
+    permutations (``faure``), or with random digit permutations (``permutation_seed``)."""
+    bases, offsets, perms = _halton_tables()
+    # masked-out lanes (inside symbolic loops) gather 0: keep the divisor >= 2
+    base = dr.maximum(dr.gather(mi.UInt32, mi.UInt32(bases), dim), 2)
+    offset = dr.gather(mi.UInt32, mi.UInt32(offsets), dim)
+    perm_table = mi.UInt32(perms) if faure else None
+    random_table = _random_permutation_table(int(permutation_seed)) if permutation_seed is not None else None
+    rest = mi.UInt32(_u32(index))
+    result = dr.zeros(mi.Float64, dr.width(rest))
+    scale = dr.ones(mi.Float64, dr.width(rest))
+    inv_base = 1.0 / mi.Float64(base)
+    for k in range(32):  # enough digits for base 2; larger bases reach 0 earlier
+        digit = rest % base
+        rest = rest // base
+        if faure:
+            digit = dr.gather(mi.UInt32, perm_table, offset + digit)
+        elif random_table is not None:
+            digit = dr.gather(mi.UInt32, random_table, offset * 32 + k * base + digit)
+        scale *= inv_base
+        result += mi.Float64(digit) * scale
+    return mi.Float(dr.minimum(result, 1.0 - 2.0 ** -24))

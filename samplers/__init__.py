@@ -5,4 +5,10 @@
 """
 
 PLUGINS = {
+    "halton": "halton:HaltonSampler",
+    "sobol": "sobol:SobolSampler",
+    "faure": "faure:FaureSampler",
 }
+
+#: modules holding base classes of the plugins above (reloaded first on a variant switch)
+BASES = ["sequence_sampler", "halton"]

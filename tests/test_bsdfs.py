@@ -217,3 +217,16 @@ def test_separable_refuses_another_shapes_emitter():
     with pytest.raises(ValueError, match="must reference the emitter of the shape this BSDF sits on"):
         bsdf.eval(mi.BSDFContext(), _frame_si(1, [0, 0, 1]), mi.Vector3f(0, 0, 1))
     del bsdf, scene
+
+
+def test_separable_without_reference_on_an_emitting_shape_is_refused():
+    """A separable BSDF that forgot `emission` on a directional_area surface: loud error."""
+    scene = mi.load_dict({"type": "scene",
+                          "a": {"type": "rectangle", "emitter": {"type": "directional_area", "id": "lamp_a"},
+                                "bsdf": {"type": "separable", "target_radiance": 2.0}}}, optimize=False)
+    _scenes.append(scene)
+    emitter = scene.emitters()[0]
+    si = _frame_si(1, [0, 0, 1])
+    with pytest.raises(ValueError, match="does not reference this emitter"):
+        emitter.eval(si)
+    del emitter, scene

@@ -122,6 +122,14 @@ def test_student_t_reference_values():
     assert abs(stats.sidak_alpha(0.01, 1) - 0.01) < 1e-12
 
 
+def test_integrator_default_depth_is_used():
+    """Mitsuba's prb defaults to max_depth = 6: the exact value must be the truncated one."""
+    case = analytic.furnace(albedo=0.8, emission=0.2, geometry="box", resolution=RES)
+    res = analytic.check(case, "prb", spp=32, runs=8)
+    assert res.max_depth == 6 and abs(res.expected_mean - 0.2 * sum(0.8 ** k for k in range(6))) < 1e-9
+    assert res.passed, res
+
+
 def test_repr_is_readable():
     res = analytic.check(analytic.keller_cube(resolution=8), "path", spp=8, runs=4)
     text = repr(res)

@@ -94,6 +94,18 @@ def integrator_dict(integrator):
     return dict(integrator)
 
 
+def effective_max_depth(d):
+    """The max_depth an integrator dict renders with: its own entry, else the plugin's
+    default (e.g. 6 for Mitsuba's `prb`, -1 for `path`, `volpath`, `ptracer`)."""
+    if "max_depth" in d:
+        return int(d["max_depth"])
+    try:
+        default = getattr(mi.load_dict(dict(d)), "max_depth", -1)
+    except Exception:
+        default = -1
+    return int(default) if default is not None else -1
+
+
 def integrator_label(d):
     extra = ", ".join("%s=%s" % (k, v) for k, v in d.items() if k != "type")
     return d["type"] + ("(%s)" % extra if extra else "")
@@ -161,9 +173,9 @@ def check(case, integrator, spp=64, runs=8, seed=0, z_bound=4.0, bias=0.0, max_d
           sampler=None, pixel_alpha=0.01, max_pixel_failure_fraction=0.01):
     """Render ``case`` with ``integrator`` ``runs`` times and test it against the exact radiance.
 
-    ``integrator``: plugin name or Mitsuba dict; its ``max_depth`` (default -1) selects the
-    exact truncated value unless ``max_depth`` is given explicitly (to test a deliberately
-    wrong expectation). ``bias``: a known, bounded absolute bias (e.g. a discretisation
+    ``integrator``: plugin name or Mitsuba dict; its ``max_depth`` (or the plugin's default,
+    e.g. 6 for `prb`) selects the exact truncated value unless ``max_depth`` is given
+    explicitly (to test a deliberately wrong expectation). ``bias``: a known, bounded absolute bias (e.g. a discretisation
     tolerance), added to the bound explicitly. ``sampler``: sensor sampler dict.
     Returns a :class:`CheckResult`; ``result.passed`` is the verdict.
     """
@@ -177,7 +189,7 @@ def check(case, integrator, spp=64, runs=8, seed=0, z_bound=4.0, bias=0.0, max_d
         raise ValueError("runs=%r: at least 2 independent runs are needed to estimate errors" % (runs,))
     if bias < 0:
         raise ValueError("bias=%r: must be >= 0" % (bias,))
-    depth = int(d.get("max_depth", -1)) if max_depth is None else int(max_depth)
+    depth = effective_max_depth(d) if max_depth is None else int(max_depth)
     result = CheckResult(case=case.name, integrator=label, spp=int(spp), runs=int(runs), bias=float(bias),
                          max_depth=depth)
     reason = case.not_applicable(d)

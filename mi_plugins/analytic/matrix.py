@@ -42,6 +42,11 @@ INTEGRATORS = {
     "path": IntegratorSpec({"type": "path"}, known_failures=dict(_SPHERE_NEE)),
     "ptracer": IntegratorSpec({"type": "ptracer"}, spp=128, quick_spp=64),
     "volpath": IntegratorSpec({"type": "volpath"}, known_failures=dict(_SPHERE_NEE)),
+    # Mitsuba's integrators driven by this package's low-discrepancy samplers
+    "path+sobol": IntegratorSpec({"type": "path"}, sampler={"type": "sobol"}, known_failures=dict(_SPHERE_NEE)),
+    "path+halton": IntegratorSpec({"type": "path"}, sampler={"type": "halton"}, known_failures=dict(_SPHERE_NEE)),
+    "path+faure": IntegratorSpec({"type": "path"}, sampler={"type": "faure"}, known_failures=dict(_SPHERE_NEE)),
+    "ptracer+sobol": IntegratorSpec({"type": "ptracer"}, spp=128, quick_spp=64, sampler={"type": "sobol"}),
 }
 
 

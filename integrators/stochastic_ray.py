@@ -1,0 +1,175 @@
+"""Stochastic iteration with the single-ray random transport operator
+(Szirmay-Kalos, "Stochastic Iteration for Non-diffuse Global Illumination", section 4)."""
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param,
+                                                      resolve_sensor, sensor_spp, image_to_film,
+                                                      camera_paths)
+
+
+class StochasticRayIntegrator(mi.SamplingIntegrator):
+    r"""
+    .. _integrator-stochastic_ray:
+
+    Stochastic iteration, single-ray transport operator (``stochastic_ray``)
+    ------------------------------------------------------------------------
+
+    The iteration :math:`L_n = L^e + T^*_n L_{n-1}` where each random operator sends the
+    whole power :math:`\Phi_n` of :math:`L_{n-1}` along one ray: the ray restarts from the
+    light sources with probability :math:`\Phi_e/\Phi_n` or continues from the last hit
+    point with the complementary probability, its direction sampled by the BSDF (the BSDF
+    sample weight stands in for the albedo, so the operator stays unbiased for any BSDF).
+    Every step's image estimate connects the newly hit point to the camera (light tracing
+    with direct pixel contribution) and adds the emission seen directly (followed through
+    delta surfaces); the image is the average over the steps after ``burn_in``.
+
+    Many independent chains run in lockstep, one Dr.Jit lane per chain, every lane doing
+    one transport step per iteration (one fused kernel per iteration).
+    ``mi.render(scene, spp=k)`` runs ``k * width * height`` chains of ``iterations`` steps
+    each (work is linear in ``k``).
+
+    .. list-table::
+       * - Parameter, type, default, range: meaning
+       * - ``iterations``, int, 16, >= 1: transport steps per chain
+       * - ``burn_in``, int, 0, 0 .. iterations-1: first steps left out of the average
+           (reduces the power defect of the paper's eq. 20)
+       * - ``max_depth``, int, -1, -1 or >= 0: longest path (in Mitsuba's convention,
+           1 = emission only); chains restart when they reach it; -1 = unbounded
+       * - ``hide_emitters``, bool, false: do not show directly visible emitters
+
+    Progress: set ``integrator.progress_callback = f``; ``f(done, total)`` is called after
+    every iteration and may return ``False`` to stop early; Ctrl-C (KeyboardInterrupt)
+    also stops early. Either way the finished iterations make the image.
+
+    Caveats: light paths are connected to the camera at non-delta surfaces only, so
+    paths of the form light ... diffuse -> specular -> camera are missing (as in Mitsuba's
+    ``ptracer``); emission seen through specular chains is included. The splat goes to
+    the pixel containing the projected point (box reconstruction).
+    """
+
+    def __init__(self, props=mi.Properties()):
+        super().__init__(props)
+        check_variant("stochastic_ray")
+        self.iterations = int_param(props, "iterations", 32, 1, None, "stochastic_ray")
+        self.burn_in = int_param(props, "burn_in", min(8, self.iterations - 1), 0, self.iterations - 1, "stochastic_ray")
+        self.max_depth = int_param(props, "max_depth", -1, -1, None, "stochastic_ray")
+        self.hide_emitters = bool_param(props, "hide_emitters", False)
+        self.progress_callback = None
+        self.iterations_done = 0
+
+    # ------------------------------------------------------------------ helpers
+    def _emitted_power(self, scene, seed):
+        """A fixed positive scalar estimate of the total emitted power (only steers the
+        restart probability; any positive value keeps the estimator unbiased)."""
+        n = 1 << 14
+        rng = mi.PCG32(n, initstate=mi.UInt64(seed * 2654435761 + 12345))
+        ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
+                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), True)
+        w = mi.Color3f(weight)
+        value = float(dr.mean((w.x + w.y + w.z) / 3.0, axis=None)[0]) if scene.emitters() else 0.0
+        return max(value, 1e-8)
+
+    def _sample_light_ray(self, scene, rng, active):
+        ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
+                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+        return ray, dr.select(active, mi.Color3f(weight), 0.0)
+
+    def _direct_emission(self, scene, sensor, spp, seed):
+        """Emission seen from the camera, followed through delta (specular) surfaces:
+        the M(L^e) term of every step (plus its specular reflections)."""
+        paths = camera_paths(scene, sensor, spp, seed, self.max_depth, self.hide_emitters)
+        return paths.emission_image
+
+    # ------------------------------------------------------------------ render
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        sensor = resolve_sensor(scene, sensor)
+        film = sensor.film()
+        size = film.crop_size()
+        spp = sensor_spp(sensor, spp)
+        width, height = int(size[0]), int(size[1])
+        n_pix = width * height
+        n_chains = spp * n_pix
+        seed = int(seed)
+
+        image = self._direct_emission(scene, sensor, spp, seed) if self.max_depth != 0 else dr.zeros(mi.Float, n_pix * 3)
+        dr.eval(image)
+        splat = dr.zeros(mi.Float, n_pix * 3)
+
+        phi_e = self._emitted_power(scene, seed)
+        lane = dr.arange(mi.UInt32, n_chains)
+        rng = mi.PCG32(n_chains, initstate=mi.UInt64(seed * 1000003 + 1), initseq=mi.UInt64(lane))
+        ray, power = self._sample_light_ray(scene, rng, mi.Bool(True))
+        depth = dr.zeros(mi.UInt32, n_chains)      # surface hits of the current light path so far
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        max_depth = self.max_depth if self.max_depth >= 0 else (1 << 30)
+
+        progress = Progress(self, self.iterations)
+        steps_averaged = 0
+        try:
+            for it in progress:
+                step_splat = dr.zeros(mi.Float, n_pix * 3)
+                ray, power, depth = self._step(scene, sensor, ray, power, depth, rng, step_splat, ctx, phi_e,
+                                               max_depth, it >= self.burn_in, width, height)
+                new_splat = splat + step_splat
+                dr.eval(ray, power, depth, rng.state, new_splat)
+                splat = new_splat
+                if it >= self.burn_in:
+                    steps_averaged += 1
+        except KeyboardInterrupt:
+            pass  # keep the finished iterations
+        self.iterations_done = progress.done
+        if steps_averaged > 0:
+            image = image + splat * (float(n_pix) / (float(n_chains) * steps_averaged))
+        tensor = mi.TensorXf(image, shape=(height, width, 3))
+        return image_to_film(film, tensor, develop)
+
+    def _step(self, scene, sensor, ray, power, depth, rng, splat, ctx, phi_e, max_depth, do_splat, width, height):
+        """One transport step on every lane: trace the carried ray, splat the hit point to
+        the camera, then pick the next ray (restart from the lights or continue)."""
+        si = scene.ray_intersect(ray, dr.any(power > 0))
+        hit = si.is_valid() & dr.any(power > 0)
+        depth_hit = depth + 1
+        # --- image estimate: connect the new hit point to the camera
+        can_splat = hit & (depth_hit + 1 <= max_depth) & do_splat
+        self._splat(scene, sensor, si, power, rng, splat, ctx, can_splat, width, height)
+        # --- next ray: continue from the hit (BSDF sampled) or restart from the lights
+        bsdf = si.bsdf(ray)
+        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
+        w = mi.Color3f(w)
+        # shading-normal correction of adjoint transport (Veach, p. 158)
+        wo_world = si.to_world(bs.wo)
+        wi_world = si.to_world(si.wi)
+        wi_geo, wo_geo = dr.dot(si.n, wi_world), dr.dot(si.n, wo_world)
+        consistent = (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(bs.wo) > 0)
+        correction = dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo / dr.maximum(dr.abs(mi.Frame3f.cos_theta(bs.wo) * wi_geo), 1e-12))
+        w = w * correction
+        can_continue = hit & consistent & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
+        cont = dr.select(can_continue, power * w, 0.0)
+        cont_s = dr.mean(cont)
+        p_restart = phi_e / (phi_e + dr.maximum(cont_s, 0.0))
+        restart = rng.next_float32() < p_restart
+        light_ray, light_power = self._sample_light_ray(scene, rng, restart)
+        new_ray = dr.select(restart, light_ray, si.spawn_ray(wo_world))
+        new_power = dr.select(restart, light_power / p_restart, cont / dr.maximum(1.0 - p_restart, 1e-12))
+        new_depth = dr.select(restart, 0, depth_hit)
+        return new_ray, new_power, new_depth
+
+    def _splat(self, scene, sensor, si, power, rng, splat, ctx, active, width, height):
+        ds, sensor_w = sensor.sample_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+        active &= ds.pdf > 0
+        active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
+        wo = si.to_local(ds.d)
+        bsdf = si.bsdf()
+        value = mi.Color3f(bsdf.eval(ctx, si, wo, active))
+        wi_world = si.to_world(si.wi)
+        wi_geo, wo_geo = dr.dot(si.n, wi_world), dr.dot(si.n, ds.d)
+        active &= (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(wo) > 0)
+        correction = dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo) * wi_geo), 1e-12))
+        value = value * power * mi.Color3f(sensor_w) * correction
+        px = mi.Int32(dr.floor(ds.uv.x))
+        py = mi.Int32(dr.floor(ds.uv.y))
+        active &= (px >= 0) & (py >= 0) & (px < width) & (py < height)
+        index = mi.UInt32(py * width + px)
+        for c in range(3):
+            dr.scatter_add(splat, value[c], index * 3 + c, active)

@@ -1,0 +1,37 @@
+"""``halton``: Halton sequence sampler (radical inverses in the first 256 primes).
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - sample_count
+     - int >= 1
+     - 4
+     - samples per pixel (``mi.render(spp=...)`` overrides it)
+   * - scramble
+     - bool
+     - true
+     - random digit permutations (one per dimension and digit position, fixed) plus a
+       per-pixel Cranley-Patterson rotation (independent randomisation per pixel); the
+       permutations remove the correlations of plain Halton in high dimensions
+   * - seed
+     - int
+     - 0
+     - base seed (``mi.render(seed=...)`` overrides it)
+"""
+from mi_plugins import qmc
+from mi_plugins.samplers.sequence_sampler import SequenceSampler
+
+
+class HaltonSampler(SequenceSampler):
+    sequence = "halton"
+    max_dim = qmc.MAX_HALTON_DIM
+    faure = False
+
+    def sequence_value(self, index, dim):
+        permuted = self.scramble and not self.faure
+        return self._rotate(qmc.halton_dynamic(index, dim, faure=self.faure,
+                                               permutation_seed=0 if permuted else None), dim)

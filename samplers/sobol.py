@@ -1,0 +1,35 @@
+"""``sobol``: Sobol sequence sampler (Joe-Kuo direction numbers, 1024 dimensions).
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Description
+   * - sample_count
+     - int >= 1
+     - 4
+     - samples per pixel (``mi.render(spp=...)`` overrides it)
+   * - scramble
+     - bool
+     - true
+     - per-pixel hash-based Owen scrambling (independent randomisation per pixel)
+   * - seed
+     - int
+     - 0
+     - base seed (``mi.render(seed=...)`` overrides it)
+
+Use powers of two for ``sample_count``: the first 2^m Sobol points are a (t, m, s)-net.
+"""
+from mi_plugins import qmc
+from mi_plugins.samplers.sequence_sampler import SequenceSampler
+
+
+class SobolSampler(SequenceSampler):
+    sequence = "sobol"
+    max_dim = qmc.MAX_SOBOL_DIM
+
+    def sequence_value(self, index, dim):
+        seed = qmc.hash_u32(self.pixel, dim, self.base_seed) if self.scramble else None
+        return qmc.sobol_dynamic(index, dim, seed)
