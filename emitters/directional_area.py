@@ -119,6 +119,13 @@ class DirectionalAreaEmitter(SurfaceEmitter):
         v1 = dr.gather(mi.Float, self._table, i + 1)
         return dr.fma(f, v1 - v0, v0)
 
+    def profile_at_theta(self, theta):
+        """profile at polar angles ``theta`` (numpy, for tabulating densities)."""
+        theta = np.asarray(theta, dtype=np.float64)
+        if self.profile == "cosine_power":
+            return np.power(np.maximum(np.cos(theta), 0.0), self.exponent)
+        return np.interp(theta, np.linspace(0.0, np.pi / 2, len(self.values)), self.values)
+
     def hemispherical_integral(self):
         """Exact integral of profile(cos theta) cos(theta) over the hemisphere."""
         if self.profile == "cosine_power":

@@ -385,3 +385,48 @@ def halton_dynamic(index, dim, faure=False, permutation_seed=None):
         scale *= inv_base
         result += mi.Float64(digit) * scale
     return mi.Float(dr.minimum(result, 1.0 - 2.0 ** -24))
+
+
+def lcg_dynamic(index, dim, dims, seed=0):
+    """:func:`lcg` with ``dim``/``dims`` as JIT values (one kernel for every dimension)."""
+    k = mi.UInt64(_u32(index)) * mi.UInt64(dims) + mi.UInt64(dim) + 1
+    a, c = _lcg_jump(k)
+    x0 = ((int(seed) & 0xFFFFFFFF) << 16) | 0x330E
+    state = (a * x0 + c) & _LCG_MASK
+    return dr.minimum(mi.Float(mi.Float64(state) * (1.0 / float(1 << 48))), 1.0 - 2.0 ** -24)
+
+
+def independent_dynamic(index, dim, seed=0):
+    """PCG32 stream per point, one generator state per dimension (JIT ``dim``)."""
+    index = _u32(index)
+    state = mi.UInt64(hash_u32(mi.UInt32(dim), int(_hash(seed, 0x1D)))) | (mi.UInt64(index) << 32)
+    rng = mi.PCG32(dr.width(index), state, mi.UInt64(index))
+    return rng.next_float32()
+
+
+def sample_dynamic(sequence, index, dim, dims, scramble=False, seed=0):
+    """Coordinate ``dim`` (a Python int turned into an opaque JIT value, so that all
+    dimensions share one compiled kernel) of points ``index`` of ``sequence``.
+    Randomisation as in :func:`sample`: Owen scrambling (Sobol), random digit
+    permutations (Halton), a Cranley-Patterson rotation on top of Faure's permutations,
+    seeds for lcg / independent."""
+    if not 0 <= int(dim) < max_dim(sequence):
+        raise DimensionError("%s: dim=%r is outside the supported dimensions [0, %d)"
+                             % (sequence, dim, max_dim(sequence)))
+    d = dr.opaque(mi.UInt32, int(dim))
+    if sequence == "sobol":
+        owen = hash_u32(d, dr.opaque(mi.UInt32, _hash(seed, 0x5EED))) if scramble else None
+        return sobol_dynamic(index, d, owen)
+    if sequence == "halton":
+        return halton_dynamic(index, d, permutation_seed=int(seed) if scramble else None)
+    if sequence == "faure":
+        x = halton_dynamic(index, d, faure=True)
+        if not scramble:
+            return x
+        y = x + _hashed_unit(d, dr.opaque(mi.UInt32, _hash(seed, 0xFA)))
+        return dr.select(y >= 1.0, y - 1.0, y)
+    if sequence == "lcg":
+        return lcg_dynamic(index, dr.opaque(mi.UInt64, int(dim)), dr.opaque(mi.UInt64, int(dims)), seed)
+    if sequence == "independent":
+        return independent_dynamic(index, d, seed)
+    raise ValueError("sequence=%r: must be one of %s" % (sequence, ", ".join(SEQUENCES)))

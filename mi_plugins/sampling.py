@@ -65,3 +65,33 @@ def square_to_power_cosine_hemisphere(sample, exponent):
 
 def square_to_power_cosine_hemisphere_pdf(d, exponent):
     return (exponent + 1.0) * dr.inv_two_pi * dr.power(dr.maximum(d.z, 0.0), exponent)
+
+
+class IsotropicLobe:
+    """Importance sampling of an isotropic hemispherical density given (up to a factor)
+    as a function of theta: ``weight(theta)`` (numpy, >= 0) times cos(theta)
+    sin(theta) is tabulated on ``resolution`` bins over [0, pi/2] and sampled with a
+    piecewise-linear ``mi.ContinuousDistribution``; phi is uniform. :meth:`sample` and
+    :meth:`pdf` return the solid-angle density actually sampled (exactly consistent)."""
+
+    def __init__(self, weight, resolution=2048):
+        import numpy as np
+        theta = np.linspace(0.0, np.pi / 2, resolution + 1)
+        density = np.asarray(weight(theta), dtype=np.float64) * np.cos(theta) * np.sin(theta)
+        if not np.all(np.isfinite(density)) or np.any(density < 0) or density.sum() <= 0:
+            raise ValueError("IsotropicLobe: the tabulated density must be finite, >= 0 and not all zero")
+        self.distribution = mi.ContinuousDistribution(mi.ScalarVector2f(0.0, np.pi / 2), mi.Float(density))
+
+    def sample(self, sample):
+        """Local direction and its solid-angle pdf from a 2D sample."""
+        theta, pdf_theta = self.distribution.sample_pdf(sample.x)
+        sin_t, cos_t = dr.sincos(theta)
+        sin_p, cos_p = dr.sincos(dr.two_pi * sample.y)
+        wo = mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
+        return wo, dr.select(sin_t > 0, pdf_theta / (dr.two_pi * sin_t), 0.0)
+
+    def pdf(self, wo):
+        theta = dr.acos(dr.clip(wo.z, 0.0, 1.0))
+        sin_t = dr.sin(theta)
+        pdf_theta = self.distribution.eval_pdf_normalized(theta)
+        return dr.select((sin_t > 0) & (wo.z > 0), pdf_theta / (dr.two_pi * sin_t), 0.0)

@@ -131,9 +131,12 @@ def _frame_si(n, wi):
     return si
 
 
-@pytest.mark.parametrize("wi", [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
-def test_separable_sampling_matches_pdf(wi):
-    bsdf, _ = separable_on_emitter()
+@pytest.mark.parametrize("wi, profile", [
+    ([0.0, 0.0, 1.0], None), ([0.6, 0.0, 0.8], None), ([0.95, 0.0, 0.3122], None),
+    ([0.6, 0.0, 0.8], {"profile": "tabulated", "values": "0.2, 1.2, 1.8, 0.4"}),
+    ([0.6, 0.0, 0.8], {"profile": "cosine_power", "exponent": 40.0})])
+def test_separable_sampling_matches_pdf(wi, profile):
+    bsdf, _ = separable_on_emitter(profile=profile)
 
     def sample_func(u):
         bs, _ = bsdf.sample(mi.BSDFContext(), _frame_si(dr.width(u), wi), u.x, mi.Point2f(u.y, u.z))
@@ -230,3 +233,38 @@ def test_separable_without_reference_on_an_emitting_shape_is_refused():
     with pytest.raises(ValueError, match="does not reference this emitter"):
         emitter.eval(si)
     del emitter, scene
+
+
+@pytest.mark.parametrize("profile", [None, {"profile": "tabulated", "values": "0.2, 1.2, 1.8, 0.4"}])
+def test_separable_importance_sampling_weight_is_the_albedo(profile):
+    """Grey uniform emission: pdf proportional to (L~ - Le(w')) cos, so every sample
+    weight f cos / pdf equals the albedo a(w) = 1 - Le(w)/L~ (up to the 2048-bin table)."""
+    bsdf, emitter = separable_on_emitter(profile=profile)
+    wi = [0.6, 0.0, 0.8]
+    rng = np.random.default_rng(5)
+    n = 20000
+    bs, weight = bsdf.sample(mi.BSDFContext(), _frame_si(n, wi), mi.Float(rng.random(n)),
+                             mi.Point2f(rng.random(n), rng.random(n)))
+    w = np.array(weight)[0]
+    albedo = 1.0 - 1.5 * float(np.array(emitter.profile_value(mi.Float(0.8)))[0]) / 3.0
+    assert np.all(np.array(bs.pdf) > 0)
+    assert abs(w.mean() - albedo) < 1e-3 and w.std() < 1e-2 * albedo, (w.mean(), w.std(), albedo)
+
+
+def test_separable_with_textured_emission_samples_cosine_weighted():
+    """Spatially varying emission: the fallback is cosine-weighted sampling (chi-square)."""
+    scene = mi.load_dict({"type": "scene", "r": {
+        "type": "rectangle",
+        "emitter": {"type": "directional_area", "id": "lamp", "exponent": 2.0,
+                    "radiance": {"type": "checkerboard", "color0": 0.5, "color1": 1.0}},
+        "bsdf": {"type": "separable", "target_radiance": 3.0, "emission": {"type": "ref", "id": "lamp"}}}},
+        optimize=False)
+    _scenes.append(scene)
+    bsdf = scene.shapes()[0].bsdf()
+    wi = [0.6, 0.0, 0.8]
+
+    def sample_func(u):
+        return bsdf.sample(mi.BSDFContext(), _frame_si(dr.width(u), wi), u.x, mi.Point2f(u.y, u.z))[0].wo
+
+    assert chi2(sample_func, lambda d: dr.maximum(d.z, 0.0) * dr.inv_pi)[0]
+    del bsdf, scene
