@@ -62,7 +62,7 @@ def test_adaptive_termination_stops_earlier_for_larger_epsilon():
     assert used[1e-2] < used[1e-4] <= 200000
 
 
-def test_neighbour_sharing_passes_and_reduces_noise():
+def test_neighbour_sharing_passes():
     case = analytic.bekaert("box", resolution=RES)
     plain = analytic.check(case, lighttrace(max_depth=29, gather_samples=4), spp=4, runs=6, max_depth=-1,
                            bias=1e-4)
