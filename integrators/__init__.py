@@ -5,7 +5,5 @@
 """
 
 PLUGINS = {
-    'stochastic_ray': 'stochastic_ray:StochasticRayIntegrator',
-    'ray_bundle': 'ray_bundle:RayBundleIntegrator',
     'qmc_lighttrace': 'qmc_lighttrace:QMCLightTraceIntegrator',
 }

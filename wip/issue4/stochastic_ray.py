@@ -63,16 +63,19 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         """A fixed positive scalar estimate of the total emitted power (only steers the
         restart probability; any positive value keeps the estimator unbiased)."""
         n = 1 << 14
-        rng = mi.PCG32(n, initstate=mi.UInt64(seed * 2654435761 + 12345))
+        self._ray_eps = getattr(self, "_ray_eps", 0.0)
+        rng = mi.PCG32(n, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 12345))
         ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
                                                   mi.Point2f(rng.next_float32(), rng.next_float32()), True)
         w = mi.Color3f(weight)
-        value = float(dr.mean((w.x + w.y + w.z) / 3.0, axis=None)[0]) if scene.emitters() else 0.0
+        value = float(dr.mean((dr.abs(w.x) + dr.abs(w.y) + dr.abs(w.z)) / 3.0, axis=None)[0]) if scene.emitters() else 0.0
         return max(value, 1e-8)
 
     def _sample_light_ray(self, scene, rng, active):
         ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
                                                   mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+        # emitted rays start exactly on the surface: step off it to avoid a self-intersection
+        ray = mi.Ray3f(ray.o + ray.d * self._ray_eps, ray.d)
         return ray, dr.select(active, mi.Color3f(weight), 0.0)
 
     def _direct_emission(self, scene, sensor, spp, seed):
@@ -96,9 +99,10 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         dr.eval(image)
         splat = dr.zeros(mi.Float, n_pix * 3)
 
+        self._ray_eps = 1e-4 * max(float(dr.norm(scene.bbox().extents())), 1e-3)
         phi_e = self._emitted_power(scene, seed)
         lane = dr.arange(mi.UInt32, n_chains)
-        rng = mi.PCG32(n_chains, initstate=mi.UInt64(seed * 1000003 + 1), initseq=mi.UInt64(lane))
+        rng = mi.PCG32(n_chains, initstate=dr.opaque(mi.UInt64, seed * 1000003 + 1), initseq=mi.UInt64(lane))
         ray, power = self._sample_light_ray(scene, rng, mi.Bool(True))
         depth = dr.zeros(mi.UInt32, n_chains)      # surface hits of the current light path so far
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
@@ -127,8 +131,9 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
     def _step(self, scene, sensor, ray, power, depth, rng, splat, ctx, phi_e, max_depth, do_splat, width, height):
         """One transport step on every lane: trace the carried ray, splat the hit point to
         the camera, then pick the next ray (restart from the lights or continue)."""
-        si = scene.ray_intersect(ray, dr.any(power > 0))
-        hit = si.is_valid() & dr.any(power > 0)
+        carries = dr.any(power != 0)   # (simulated emitters may give negative power samples)
+        si = scene.ray_intersect(ray, carries)
+        hit = si.is_valid() & carries
         depth_hit = depth + 1
         # --- image estimate: connect the new hit point to the camera
         can_splat = hit & (depth_hit + 1 <= max_depth) & do_splat
@@ -146,8 +151,8 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         w = w * correction
         can_continue = hit & consistent & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
         cont = dr.select(can_continue, power * w, 0.0)
-        cont_s = dr.mean(cont)
-        p_restart = phi_e / (phi_e + dr.maximum(cont_s, 0.0))
+        cont_s = (dr.abs(cont.x) + dr.abs(cont.y) + dr.abs(cont.z)) / 3.0
+        p_restart = phi_e / (phi_e + cont_s)
         restart = rng.next_float32() < p_restart
         light_ray, light_power = self._sample_light_ray(scene, rng, restart)
         new_ray = dr.select(restart, light_ray, si.spawn_ray(wo_world))

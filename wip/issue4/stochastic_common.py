@@ -107,7 +107,7 @@ def camera_paths(scene, sensor, spp, seed, max_depth=-1, hide_emitters=False):
     n = n_pix * spp
     idx = dr.arange(mi.UInt32, n)
     pixel = idx // spp
-    rng = mi.PCG32(n, initstate=mi.UInt64(seed * 7919 + 17), initseq=mi.UInt64(idx))
+    rng = mi.PCG32(n, initstate=dr.opaque(mi.UInt64, seed * 7919 + 17), initseq=mi.UInt64(idx))
     pos = mi.Vector2f(mi.Float(pixel % size[0]), mi.Float(pixel // size[0]))
     pos += mi.Vector2f(rng.next_float32(), rng.next_float32())
     scale = dr.rcp(mi.ScalarVector2f(size))
