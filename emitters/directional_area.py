@@ -41,11 +41,11 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.emitters.surface_emitter import SurfaceEmitter
-from mi_plugins.sampling import square_to_power_cosine_hemisphere, square_to_power_cosine_hemisphere_pdf
+from mi_plugins.sampling import (IsotropicLobe, square_to_power_cosine_hemisphere,
+                                 square_to_power_cosine_hemisphere_pdf)
 from mi_plugins.textures import texture_min, texture_param
 
 PROFILES = ("cosine_power", "tabulated")
-_TABLE_RESOLUTION = 2048
 
 
 def _parse_values(value):
@@ -98,13 +98,10 @@ class DirectionalAreaEmitter(SurfaceEmitter):
                 raise ValueError("directional_area: values=%s must hold at least 2 finite values >= 0"
                                  % (self.values.tolist(),))
             self._table = mi.Float(self.values)
-            theta = np.linspace(0, np.pi / 2, _TABLE_RESOLUTION + 1)
-            density = np.interp(theta, np.linspace(0, np.pi / 2, len(self.values)), self.values) \
-                * np.cos(theta) * np.sin(theta)
-            if density.sum() <= 0:
+            if not np.any(self.values > 0):
                 raise ValueError("directional_area: values=%s emit nothing" % (self.values.tolist(),))
-            self._theta_distribution = mi.ContinuousDistribution(mi.ScalarVector2f(0, np.pi / 2),
-                                                                 mi.Float(density))
+            # importance sampling proportional to profile * cos, tabulated in theta
+            self._lobe = IsotropicLobe(self.profile_at_theta)
 
     # ----------------------------------------------------------- the profile
     def profile_value(self, cos_theta):
@@ -171,20 +168,13 @@ class DirectionalAreaEmitter(SurfaceEmitter):
         if self.profile == "cosine_power":
             wo = square_to_power_cosine_hemisphere(sample, self.exponent + 1.0)
             return wo, square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
-        theta, pdf_theta = self._theta_distribution.sample_pdf(sample.x)
-        sin_t, cos_t = dr.sincos(theta)
-        sin_p, cos_p = dr.sincos(dr.two_pi * sample.y)
-        wo = mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
-        return wo, dr.select(sin_t > 0, pdf_theta / (dr.two_pi * sin_t), 0.0)
+        return self._lobe.sample(sample)
 
     def pdf_outgoing(self, wo):
         """Density (solid angle) of :meth:`sample_outgoing` at local direction ``wo``."""
         if self.profile == "cosine_power":
             return square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
-        theta = dr.acos(dr.clip(mi.Frame3f.cos_theta(wo), 0.0, 1.0))
-        sin_t = dr.sin(theta)
-        pdf_theta = self._theta_distribution.eval_pdf_normalized(theta)
-        return dr.select((sin_t > 0) & (wo.z > 0), pdf_theta / (dr.two_pi * sin_t), 0.0)
+        return self._lobe.pdf(wo)
 
     def to_string(self):
         detail = ("exponent=%g" % self.exponent) if self.profile == "cosine_power" else \
