@@ -36,7 +36,7 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.sampling import square_to_power_cosine_hemisphere
-from mi_plugins.textures import texture_max, texture_min, texture_param
+from mi_plugins.textures import texture_min, texture_param, texture_sum_max
 
 
 def _reflect(wi):
@@ -57,26 +57,13 @@ class PhongBSDF(mi.BSDF):
             raise ValueError("phong: exponent=%r must be >= 0" % (self.exponent,))
         if texture_min(self.kd) < 0 or texture_min(self.ks) < 0:
             raise ValueError("phong: diffuse_reflectance and specular_reflectance must be >= 0")
-        total = texture_max(self._sum_texture())
+        total = texture_sum_max(self.kd, self.ks)
         if total > 1.0 + 1e-6:
             raise ValueError("phong: diffuse_reflectance + specular_reflectance reaches %.4g; it must be <= 1 "
                              "in every channel for an energy-conserving BSDF" % total)
         self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
                              mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0] | self.m_components[1]
-
-    def _sum_texture(self):
-        """kd + ks as one texture (for the energy check only)."""
-        class _Sum:
-            def __init__(s, a, b):
-                s.a, s.b = a, b
-
-            def max(s):
-                raise NotImplementedError
-
-            def eval(s, si):
-                return s.a.eval(si) + s.b.eval(si)
-        return _Sum(self.kd, self.ks)
 
     # ------------------------------------------------------------ helpers
     def _lobes(self, si, active):

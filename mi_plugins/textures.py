@@ -42,3 +42,12 @@ def texture_max(texture):
 def texture_min(texture):
     """Smallest value (over channels and the uv domain) of a texture, as a float."""
     return float(np.min(np.array(_grid_values(texture))))
+
+
+def texture_sum_max(*textures):
+    """Largest value (over channels and the uv domain) of the sum of several textures."""
+    total = None
+    for texture in textures:
+        values = np.array(_grid_values(texture))
+        total = values if total is None else total + values
+    return float(np.max(total))

@@ -49,8 +49,9 @@ class SequenceSampler(mi.Sampler):
         spp = self.sample_count()
         self.sample_index = lane % spp
         self.pixel = lane // spp
-        self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3) if not isinstance(seed, int) else \
-            qmc.hash_u32(mi.UInt32(seed & 0xFFFFFFFF), 0xA511E9B3)
+        if isinstance(seed, int):
+            seed &= 0xFFFFFFFF
+        self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3)
         self.dimension = dr.zeros(mi.UInt32, width)
         self.wavefront = width
 
