@@ -6,4 +6,6 @@
 
 PLUGINS = {
     'qmc_lighttrace': 'qmc_lighttrace:QMCLightTraceIntegrator',
+    'stochastic_ray': 'stochastic_ray:StochasticRayIntegrator',
+    'ray_bundle': 'ray_bundle:RayBundleIntegrator',
 }

@@ -3,6 +3,12 @@
 Works with every integrator: pass k renders ``spp_k`` samples with its own seed,
 and the image is the sample-weighted average of the finished passes (for a
 progressive integrator of this package each pass is an independent run).
+
+Iterative integrators (``stochastic_ray``, ``ray_bundle``: they have a
+``progress_callback`` attribute and an ``iteration_count(spp)`` method) report every
+finished iteration: the progress bar counts iterations, and Ctrl-C inside a pass keeps
+the iterations of that pass finished so far, weighted by the fraction of the pass's
+averaged iterations they make up.
 """
 import time
 from dataclasses import dataclass
@@ -19,6 +25,9 @@ class PassResult:
     passes: int
     seconds: float
     interrupted: bool
+    #: iterative integrators: iterations finished (all passes) and planned
+    iterations_done: int = 0
+    iterations: int = 0
 
 
 def split_spp(spp, passes):
@@ -32,31 +41,47 @@ def scene_spp(scene):
     return int(scene.sensors()[0].sampler().sample_count())
 
 
+def _iterative(integrator):
+    return hasattr(integrator, "progress_callback") and hasattr(integrator, "iteration_count")
+
+
 def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, callback=None):
     """Render ``scene`` with ``spp`` samples split into ``passes`` passes.
 
     ``callback(passes_done, passes)`` is called after each pass; ``progress_bar`` shows a tqdm
-    bar when tqdm is installed. A KeyboardInterrupt stops rendering and returns the finished
-    passes (``interrupted=True``).
+    bar when tqdm is installed (counting iterations for iterative integrators, passes
+    otherwise). A KeyboardInterrupt stops rendering and returns the finished passes
+    (``interrupted=True``), plus, for an iterative integrator, the finished iterations of
+    the interrupted pass.
     """
     spp = scene_spp(scene) if spp is None else int(spp)
     parts = split_spp(spp, passes)
-    bar = None
-    if progress_bar:
-        try:
-            from tqdm import tqdm
-            bar = tqdm(total=len(parts), unit="pass", desc="rendering", leave=True)
-        except ImportError:
-            bar = None
-    accum, done_spp, done, interrupted = None, 0, 0, False
+    integrator = scene.integrator()
+    iterative = _iterative(integrator)
+    planned = sum(integrator.iteration_count(part) for part in parts) if iterative else 0
+    bar = _progress_bar(planned if iterative else len(parts), "iteration" if iterative else "pass") \
+        if progress_bar else None
+    accum, weight, done, interrupted, iterations_done = None, 0.0, 0, False, 0
     t0 = time.perf_counter()
+    if iterative:
+        def on_iteration(finished, total):
+            if bar is not None:
+                bar.update(1)
+        integrator.progress_callback = on_iteration
     try:
         for k, part in enumerate(parts):
             img = np.array(mi.render(scene, spp=part, seed=int(seed) * 100003 + k), dtype=np.float64)
-            accum = img * part if accum is None else accum + img * part
-            done_spp += part
+            share = 1.0
+            if iterative:
+                iterations_done += integrator.iterations_done
+                share = integrator.averaged_fraction
+            if share > 0:
+                accum = img * part * share if accum is None else accum + img * part * share
+                weight += part * share
+            if iterative and integrator.interrupted:
+                raise KeyboardInterrupt
             done += 1
-            if bar is not None:
+            if bar is not None and not iterative:
                 bar.update(1)
             if callback is not None:
                 callback(done, len(parts))
@@ -65,9 +90,19 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     finally:
         if bar is not None:
             bar.close()
+        if iterative:
+            integrator.progress_callback = None
     if accum is None:
         film = scene.sensors()[0].film()
         size = film.crop_size()
-        accum, done_spp = np.zeros((size[1], size[0], 3)), 1
-    return PassResult((accum / done_spp).astype(np.float32), done_spp if done else 0, done, len(parts),
-                      time.perf_counter() - t0, interrupted)
+        accum, weight = np.zeros((size[1], size[0], 3)), 1.0
+    return PassResult((accum / weight).astype(np.float32), sum(parts[:done]), done, len(parts),
+                      time.perf_counter() - t0, interrupted, iterations_done, planned)
+
+
+def _progress_bar(total, unit):
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, unit=unit, desc="rendering", leave=True)

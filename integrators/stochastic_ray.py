@@ -56,7 +56,12 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         self.max_depth = int_param(props, "max_depth", -1, -1, None, "stochastic_ray")
         self.hide_emitters = bool_param(props, "hide_emitters", False)
         self.progress_callback = None
-        self.iterations_done = 0
+        self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
+
+    def iteration_count(self, spp):
+        """Iterations (transport steps) of a render with ``spp``: spp scales the number of
+        chains, not the number of steps."""
+        return self.iterations
 
     # ------------------------------------------------------------------ helpers
     def _emitted_power(self, scene, seed):
@@ -108,8 +113,7 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
         max_depth = self.max_depth if self.max_depth >= 0 else (1 << 30)
 
-        progress = Progress(self, self.iterations)
-        steps_averaged = 0
+        progress = Progress(self, self.iterations, self.burn_in)
         try:
             for it in progress:
                 step_splat = dr.zeros(mi.Float, n_pix * 3)
@@ -118,11 +122,9 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
                 new_splat = splat + step_splat
                 dr.eval(ray, power, depth, rng.state, new_splat)
                 splat = new_splat
-                if it >= self.burn_in:
-                    steps_averaged += 1
         except KeyboardInterrupt:
-            pass  # keep the finished iterations
-        self.iterations_done = progress.done
+            progress.stop()  # Ctrl-C: keep the finished iterations
+        steps_averaged = progress.averaged
         if steps_averaged > 0:
             image = image + splat * (float(n_pix) / (float(n_chains) * steps_averaged))
         tensor = mi.TensorXf(image, shape=(height, width, 3))

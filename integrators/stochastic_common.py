@@ -1,12 +1,15 @@
 """Helpers shared by the stochastic-iteration integrators (``stochastic_ray``,
-``ray_bundle``): parameter parsing with clear errors, sensor/spp resolution, and the
-progress hook.
+``ray_bundle``): parameter parsing with clear errors, sensor/spp resolution, the
+progress hook, and camera paths followed through delta surfaces.
 
 Progress hook: an integrator instance has an attribute ``progress_callback`` (default
 None). When set, ``progress_callback(done, total)`` is called after every finished
-iteration; returning ``False`` stops the render early. A KeyboardInterrupt (Ctrl-C)
-during an iteration also stops early. In both cases the image is made of the finished
-iterations, and ``integrator.iterations_done`` tells how many there were.
+iteration; returning ``False`` (or raising KeyboardInterrupt) stops the render early,
+and so does Ctrl-C during an iteration. The image is then made of the finished
+iterations; after every render ``integrator.iterations_done`` (finished iterations),
+``integrator.interrupted`` and ``integrator.averaged_fraction`` (averaged iterations
+finished / planned) tell what the image holds. ``integrator.iteration_count(spp)`` is
+the number of iterations a render with ``spp`` runs (what a progress bar counts).
 """
 import drjit as dr
 import mitsuba as mi
@@ -69,38 +72,68 @@ def image_to_film(film, tensor, develop):
 
 class Progress:
     """Iterate over ``range(total)`` calling ``owner.progress_callback(done, total)`` after
-    each item; stops early when the callback returns False or on KeyboardInterrupt.
-    ``done`` counts the finished iterations."""
+    each item; stops early when the callback returns False or raises KeyboardInterrupt.
+    ``done`` counts the finished iterations, ``averaged`` those after ``burn_in``.
 
-    def __init__(self, owner, total):
-        self.owner, self.total, self.done = owner, int(total), 0
-        self.interrupted = False
+    A KeyboardInterrupt raised inside the loop body (Ctrl-C during an iteration) must be
+    caught by the caller, which then calls :meth:`stop`.
+    """
+
+    def __init__(self, owner, total, burn_in):
+        self.owner, self.total, self.burn_in = owner, int(total), int(burn_in)
+        self.done, self.interrupted = 0, False
+        owner.iterations_done, owner.interrupted, owner.averaged_fraction = 0, False, 0.0
+
+    @property
+    def averaged(self):
+        return max(0, self.done - self.burn_in)
 
     def __iter__(self):
         for it in range(self.total):
             yield it
             self.done = it + 1
+            self._publish()
             callback = getattr(self.owner, "progress_callback", None)
             if callback is not None:
                 try:
                     if callback(self.done, self.total) is False:
-                        self.interrupted = True
+                        self.stop()
                         return
                 except KeyboardInterrupt:
-                    self.interrupted = True
+                    self.stop()
                     return
+
+    def stop(self):
+        self.interrupted = True
+        self._publish()
+
+    def _publish(self):
+        self.owner.iterations_done = self.done
+        self.owner.interrupted = self.interrupted
+        self.owner.averaged_fraction = self.averaged / max(1, self.total - self.burn_in)
 
 
 class CameraPaths:
-    """Camera samples (``spp`` per pixel) followed through delta surfaces.
+    """Camera samples (``spp`` per pixel) followed through purely specular surfaces.
 
     ``pixel``: pixel index of each sample; ``emission_image``: flat (H*W*3) Float, the
-    emission seen along each sample's delta chain averaged per pixel; ``ray``/``throughput``/
-    ``valid``: the ray reaching the first non-delta surface, its throughput, and whether
-    such a surface was reached within ``max_depth``; ``depth``: its path depth."""
+    emission seen along each sample's specular chain, averaged per pixel; ``ray``,
+    ``throughput``, ``valid``: the ray reaching the first surface with a non-delta BSDF
+    component, its throughput, and whether such a surface was reached; ``depth``: the
+    number of specular bounces before it."""
+
+
+#: camera paths through specular chains play Russian roulette after this many bounces
+#: (survival probability min(max throughput, 0.95), so perfect mirrors terminate too)
+CAMERA_RR_DEPTH = 5
 
 
 def camera_paths(scene, sensor, spp, seed, max_depth=-1, hide_emitters=False):
+    """Trace ``spp`` camera rays per pixel and follow them through surfaces whose BSDF is
+    purely delta (mirror, glass): such surfaces are sampled, and the path stops at the
+    first surface with any non-delta component, where the integrators evaluate their own
+    estimate. (The delta lobes of mixed BSDFs such as ``plastic`` are not followed.)
+    ``max_depth`` uses Mitsuba's convention (1: emission seen directly only)."""
     film = sensor.film()
     size = film.crop_size()
     n_pix = int(size[0]) * int(size[1])
@@ -122,16 +155,20 @@ def camera_paths(scene, sensor, spp, seed, max_depth=-1, hide_emitters=False):
         visible = show & (depth > 0) if hide_emitters else show
         result += dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
         bsdf = si.bsdf(ray)
-        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), show)
-        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        # a non-delta surface ends the camera path (kept for gathering)
-        reached |= show & ~delta & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        new_active = show & delta & (depth + 1 < depth_limit)
-        throughput = dr.select(new_active, throughput * mi.Color3f(w), throughput)
-        new_active &= dr.any(throughput > 0)
-        ray = dr.select(new_active, si.spawn_ray(si.to_world(bs.wo)), ray)
-        depth = dr.select(new_active, depth + 1, depth)
-        return ray, throughput, result, new_active, reached, depth, rng
+        flags = bsdf.flags()
+        specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        reached |= show & ~specular & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        follow = show & specular & (depth + 1 < depth_limit)
+        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), follow)
+        throughput = dr.select(follow, throughput * mi.Color3f(w), throughput)
+        survive = dr.minimum(dr.max(throughput), 0.95)
+        roulette = follow & (depth + 1 >= CAMERA_RR_DEPTH)
+        follow &= ~roulette | (rng.next_float32() < survive)
+        throughput = dr.select(roulette & follow, throughput / survive, throughput)
+        follow &= dr.max(throughput) > 0
+        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), ray)
+        depth = dr.select(follow, depth + 1, depth)
+        return ray, throughput, result, follow, reached, depth, rng
 
     state = dr.while_loop((ray, mi.Color3f(ray_w), mi.Color3f(0.0), mi.Bool(True), mi.Bool(False),
                            mi.UInt32(0), rng),

@@ -127,7 +127,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         self.direction_sequence = choice_param(props, "direction_sequence", "independent", DIRECTION_SEQUENCES, who)
         self.hide_emitters = bool_param(props, "hide_emitters", False)
         self.progress_callback = None
-        self.iterations_done = 0
+        self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
+
+    def iteration_count(self, spp):
+        """Global iterations of a render with ``spp``: ``iterations * spp``."""
+        return self.iterations * int(spp)
 
     # ------------------------------------------------------------------ patches
     def _patch_interaction(self, table, rng, out_dir):
@@ -266,8 +270,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         dr.eval(L_fwd, L_bwd, rng_patch.state)
 
         accum = dr.zeros(mi.Float, n_pix * 3)
-        averaged = 0
-        progress = Progress(self, total)
+        progress = Progress(self, total, burn_in)
         try:
             for m in progress:
                 d = _opaque_dir(dirs[m])
@@ -301,10 +304,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                 L_bwd_new = new_L[1] if self.bidirectional else None
                 dr.eval(L_fwd_new, L_bwd_new, new_accum, rng_lines.state, rng_patch.state)
                 L_fwd, L_bwd, accum = L_fwd_new, L_bwd_new, new_accum
-                if m >= burn_in:
-                    averaged += 1
         except KeyboardInterrupt:
-            pass
-        self.iterations_done = progress.done
-        image = accum / max(averaged, 1)
+            progress.stop()  # Ctrl-C: keep the finished iterations
+        image = accum / max(progress.averaged, 1)
         return image_to_film(film, mi.TensorXf(image, shape=(height, width, 3)), develop)
