@@ -7,44 +7,40 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins import qmc
 from mi_plugins.meshtable import MeshTable
 from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param, choice_param,
-                                                      resolve_sensor, sensor_spp, image_to_film, camera_paths)
+                                                      resolve_sensor, sensor_spp, image_to_film, camera_paths, SPLAT_MODE)
 
 DIRECTION_SEQUENCES = ("independent", "halton", "hammersley", "pi")
 ESTIMATES = ("gather", "patch")
 
 
-def _radical_inverse(n, base):
-    inv, f, r = 1.0 / base, 1.0 / base, 0.0
-    while n > 0:
-        r += (n % base) * f
-        n //= base
-        f *= inv
-    return r
-
-
 def direction_samples(kind, count, seed):
     """``count`` points of [0,1)^2 that pick the global directions, one per iteration.
 
-    'independent': pseudo-random (numpy PCG64 seeded by ``seed``); 'halton': bases 2, 3;
-    'hammersley': (n/count, radical inverse base 2), whose first coordinate only grows
-    (the paper's figure 7 failure); 'pi': the paper's q_n = {(pi - 2) q_{n-1}} scheme
-    (kept modulo 100000 as in the paper), consecutive values paired. The quasi-random
-    sequences get a random Cranley-Patterson shift from ``seed`` (so seeds differ)."""
+    'independent': pseudo-random (numpy PCG64 seeded by ``seed``); 'halton': bases 2, 3
+    (points 1 .. count); 'hammersley': (n/count, radical inverse base 2), whose first
+    coordinate only grows (the paper's figure 7 failure); 'pi': the paper's
+    q_n = {(pi - 2) q_{n-1}} scheme (kept modulo 100000 as in the paper; a value that
+    falls below 1 is restarted at random, because x -> 1.14 x leaves small values only
+    slowly), consecutive values paired. The quasi-random sequences get a random
+    Cranley-Patterson shift from ``seed`` (only of the second coordinate for Hammersley,
+    whose ordering is the point of it), so that seeds differ."""
     rng = np.random.default_rng(seed)
     if kind == "independent":
         return rng.random((count, 2))
     if kind == "halton":
-        pts = np.array([[_radical_inverse(n + 1, 2), _radical_inverse(n + 1, 3)] for n in range(count)])
+        pts = qmc.points("halton", count, 2, start=1)
     elif kind == "hammersley":
-        pts = np.array([[(n + 0.5) / count, _radical_inverse(n, 2)] for n in range(count)])
+        pts = qmc.points("hammersley", count, 2)
+        pts[:, 0] += 0.5 / count          # centred: (n + 1/2) / count
     else:  # 'pi'
         q = 1.0 + 99999.0 * rng.random()
         vals = []
-        for _ in range(2 * count):
+        for _ in range(2 * count):        # one scalar recurrence step per iteration
             q = ((math.pi - 2.0) * q) % 100000.0
-            if q < 1.0:  # the map x -> 1.14 x never leaves small values quickly: restart it
+            if q < 1.0:
                 q += 1.0 + 99999.0 * rng.random()
             vals.append(q - math.floor(q))
         pts = np.array(vals).reshape(count, 2)
@@ -52,12 +48,13 @@ def direction_samples(kind, count, seed):
     return np.mod(pts + shift, 1.0)
 
 
-def uniform_sphere_np(samples):
-    """Map points of [0,1)^2 to uniformly distributed unit directions (numpy, (n, 3))."""
-    z = 1.0 - 2.0 * samples[:, 0]
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = 2.0 * np.pi * samples[:, 1]
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+def uniform_sphere_directions(samples):
+    """Points of [0,1)^2 (numpy (n, 2)) -> uniformly distributed unit directions (n, 3):
+    the first coordinate sets z = cos(theta), the second the azimuth (Mitsuba's warp
+    takes them the other way round). With Hammersley points the polar angle therefore
+    sweeps monotonically from one pole to the other, the paper's failure case."""
+    d = mi.warp.square_to_uniform_sphere(mi.Point2f(samples[:, 1], samples[:, 0]))
+    return np.stack([np.array(d.x), np.array(d.y), np.array(d.z)], axis=1).astype(np.float64)
 
 
 def _opaque_dir(v):
@@ -177,8 +174,8 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
             n = dr.gather(mi.Normal3f, table.normal, tri, hit)
             cos_d = dr.dot(n, d)
             exchange = hit & prev_fwd & (cos_d < 0)
-            dr.scatter_add(in_fwd, dr.gather(mi.Color3f, L_fwd, prev, exchange) * delta_area, tri, exchange)
-            dr.scatter_add(in_bwd, dr.gather(mi.Color3f, L_bwd, tri, exchange) * delta_area, prev, exchange)
+            dr.scatter_add(in_fwd, dr.gather(mi.Color3f, L_fwd, prev, exchange) * delta_area, tri, exchange, mode=SPLAT_MODE)
+            dr.scatter_add(in_bwd, dr.gather(mi.Color3f, L_bwd, tri, exchange) * delta_area, prev, exchange, mode=SPLAT_MODE)
             ray = si.spawn_ray(mi.Vector3f(d))
             return ray, hit, tri, hit & (cos_d > 0)
 
@@ -252,7 +249,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         total = self.iterations * spp
         burn_in = self.burn_in
         samples = direction_samples(self.direction_sequence, total + 1, seed)
-        dirs = uniform_sphere_np(samples)
+        dirs = uniform_sphere_directions(samples)
         weight = 2.0 * math.pi if self.bidirectional else 4.0 * math.pi
 
         rng_lines = mi.PCG32(self.resolution ** 2, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 7),
@@ -295,7 +292,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                 for out in ((d_new, -d_new) if self.bidirectional else (d_new,)):
                     si = self._patch_interaction(table, rng_patch, out)
                     L = self._emission(scene, si)
-                    area = table.area
+                    area = dr.maximum(table.area, 1e-30)   # degenerate triangles: never hit, no NaN
                     L += weight * self._reflect(si, in_fwd / area, -d)
                     if in_bwd is not None:
                         L += weight * self._reflect(si, in_bwd / area, d)

@@ -15,6 +15,11 @@ import drjit as dr
 import mitsuba as mi
 
 
+#: scatter-adds into small arrays (image, per-triangle sums) from many lanes: on the LLVM
+#: backend, per-core copies of the target instead of contended atomics
+SPLAT_MODE = dr.ReduceMode.Expand
+
+
 def check_variant(who):
     variant = mi.variant() or ""
     if variant.startswith("scalar") or "rgb" not in variant or "polarized" in variant:

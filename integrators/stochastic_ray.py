@@ -5,7 +5,7 @@ import mitsuba as mi
 
 from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param,
                                                       resolve_sensor, sensor_spp, image_to_film,
-                                                      camera_paths)
+                                                      camera_paths, SPLAT_MODE)
 
 
 class StochasticRayIntegrator(mi.SamplingIntegrator):
@@ -31,9 +31,10 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
 
     .. list-table::
        * - Parameter, type, default, range: meaning
-       * - ``iterations``, int, 16, >= 1: transport steps per chain
-       * - ``burn_in``, int, 0, 0 .. iterations-1: first steps left out of the average
-           (reduces the power defect of the paper's eq. 20)
+       * - ``iterations``, int, 32, >= 1: transport steps per chain
+       * - ``burn_in``, int, min(8, iterations - 1), 0 .. iterations-1: first steps left out
+           of the average (the power defect of the paper's eq. 20 decays like
+           lambda^burn_in for the largest albedo lambda: use ~64 when lambda is near 0.9)
        * - ``max_depth``, int, -1, -1 or >= 0: longest path (in Mitsuba's convention,
            1 = emission only); chains restart when they reach it; -1 = unbounded
        * - ``hide_emitters``, bool, false: do not show directly visible emitters
@@ -105,7 +106,8 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         splat = dr.zeros(mi.Float, n_pix * 3)
 
         self._ray_eps = 1e-4 * max(float(dr.norm(scene.bbox().extents())), 1e-3)
-        phi_e = self._emitted_power(scene, seed)
+        # opaque: a new value (other seed, simulated emission) must not recompile the step kernel
+        phi_e = dr.opaque(mi.Float, self._emitted_power(scene, seed))
         lane = dr.arange(mi.UInt32, n_chains)
         rng = mi.PCG32(n_chains, initstate=dr.opaque(mi.UInt64, seed * 1000003 + 1), initseq=mi.UInt64(lane))
         ray, power = self._sample_light_ray(scene, rng, mi.Bool(True))
@@ -179,4 +181,4 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         active &= (px >= 0) & (py >= 0) & (px < width) & (py < height)
         index = mi.UInt32(py * width + px)
         for c in range(3):
-            dr.scatter_add(splat, value[c], index * 3 + c, active)
+            dr.scatter_add(splat, value[c], index * 3 + c, active, mode=SPLAT_MODE)

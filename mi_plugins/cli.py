@@ -86,11 +86,14 @@ def _render(args):
             else type(scene.integrator()).__name__,
             "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
             "passes": "%d/%d" % (result.passes_done, result.passes), "scene": os.path.abspath(args.scene)}
+    if result.iterations:
+        meta["iterations"] = "%d/%d" % (result.iterations_done, result.iterations)
     exr.write(args.output, result.image, meta)
     state = "interrupted after" if result.interrupted else "finished"
-    print("%s %d/%d passes (%d spp, %.2f s); wrote %s"
-          % (state, result.passes_done, result.passes, result.spp_done, result.seconds, args.output))
-    return 130 if result.interrupted and result.passes_done == 0 else 0
+    iterations = ", %d/%d iterations" % (result.iterations_done, result.iterations) if result.iterations else ""
+    print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
+          % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, args.output))
+    return 130 if result.interrupted and result.empty else 0
 
 
 def main(argv=None):

@@ -10,6 +10,8 @@ finished iteration: the progress bar counts iterations, and Ctrl-C inside a pass
 the iterations of that pass finished so far, weighted by the fraction of the pass's
 averaged iterations they make up.
 """
+import signal
+import threading
 import time
 from dataclasses import dataclass
 
@@ -28,6 +30,13 @@ class PassResult:
     #: iterative integrators: iterations finished (all passes) and planned
     iterations_done: int = 0
     iterations: int = 0
+    #: share (0..1) of the interrupted pass's averaged iterations that the image holds
+    partial_pass: float = 0.0
+
+    @property
+    def empty(self):
+        """True when no finished work made it into the image (it is then all zeros)."""
+        return self.passes_done == 0 and self.partial_pass == 0.0
 
 
 def split_spp(spp, passes):
@@ -61,16 +70,24 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     planned = sum(integrator.iteration_count(part) for part in parts) if iterative else 0
     bar = _progress_bar(planned if iterative else len(parts), "iteration" if iterative else "pass") \
         if progress_bar else None
-    accum, weight, done, interrupted, iterations_done = None, 0.0, 0, False, 0
+    accum, weight, done, interrupted, iterations_done, partial = None, 0.0, 0, False, 0, 0.0
     t0 = time.perf_counter()
     if iterative:
         def on_iteration(finished, total):
             if bar is not None:
                 bar.update(1)
         integrator.progress_callback = on_iteration
+    sigint = _SigintRecorder()
     try:
         for k, part in enumerate(parts):
-            img = np.array(mi.render(scene, spp=part, seed=int(seed) * 100003 + k), dtype=np.float64)
+            try:
+                img = np.array(mi.render(scene, spp=part, seed=int(seed) * 100003 + k), dtype=np.float64)
+            except Exception:
+                # Mitsuba's C++ integrators catch SIGINT themselves, cancel the render and
+                # re-raise the signal; the cancelled render may surface as an exception.
+                if sigint.received:
+                    raise KeyboardInterrupt
+                raise
             share = 1.0
             if iterative:
                 iterations_done += integrator.iterations_done
@@ -79,6 +96,7 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
                 accum = img * part * share if accum is None else accum + img * part * share
                 weight += part * share
             if iterative and integrator.interrupted:
+                partial = share
                 raise KeyboardInterrupt
             done += 1
             if bar is not None and not iterative:
@@ -88,6 +106,7 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        sigint.restore()
         if bar is not None:
             bar.close()
         if iterative:
@@ -97,7 +116,27 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
         size = film.crop_size()
         accum, weight = np.zeros((size[1], size[0], 3)), 1.0
     return PassResult((accum / weight).astype(np.float32), sum(parts[:done]), done, len(parts),
-                      time.perf_counter() - t0, interrupted, iterations_done, planned)
+                      time.perf_counter() - t0, interrupted, iterations_done, planned, partial)
+
+
+class _SigintRecorder:
+    """While rendering, Ctrl-C raises KeyboardInterrupt as usual and is also recorded
+    (only in the main thread; elsewhere Python does not allow signal handlers)."""
+
+    def __init__(self):
+        self.received, self.installed, self.previous = False, False, None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handle)
+            self.installed = True
+
+    def _handle(self, signum, frame):
+        self.received = True
+        raise KeyboardInterrupt
+
+    def restore(self):
+        if self.installed:
+            signal.signal(signal.SIGINT, self.previous if self.previous is not None else signal.default_int_handler)
+            self.installed = False
 
 
 def _progress_bar(total, unit):

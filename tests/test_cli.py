@@ -1,10 +1,12 @@
 """End-to-end tests of `mi-plugins verify` and `mi-plugins render`."""
 import json
 import os
+import re
 import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from mi_plugins import exr
 
@@ -86,11 +88,65 @@ def test_ctrl_c_writes_the_finished_passes(tmp_path):
     while time.time() < deadline and "/1000" not in buf.replace(" 0/1000", ""):
         buf += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
     proc.send_signal(signal.SIGINT)
-    stdout, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 0, stdout
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stdout + stderr
     assert "interrupted after" in stdout
     image, meta = exr.read(str(out))
     done, total = (int(v) for v in meta["passes"].split("/"))
     assert 1 <= done < total == 1000
     assert int(meta["spp"]) == 100 * done
     assert abs(image.mean() - 1.0) < 0.2 and np.all(np.isfinite(image))
+
+
+@pytest.mark.parametrize("integrator", [{"type": "stochastic_ray", "iterations": 40, "burn_in": 8},
+                                        {"type": "ray_bundle", "iterations": 40, "burn_in": 8, "resolution": 32}],
+                         ids=["stochastic_ray", "ray_bundle"])
+def test_interrupted_iterative_render_keeps_finished_iterations(integrator):
+    """Ctrl-C (here: raised by the progress hook) inside the second pass of an iterative
+    integrator keeps pass 1 and the finished iterations of pass 2, weighted by their share."""
+    from mi_plugins import analytic, passes
+    scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(integrator)
+    integ = scene.integrator()
+    per_pass = integ.iteration_count(1)
+    seen = []
+
+    def on_pass(done, total):
+        seen.append(done)
+        original = integ.progress_callback
+
+        def stop_midway(finished, total_iterations):
+            original(finished, total_iterations)
+            if finished == 24:
+                raise KeyboardInterrupt
+        integ.progress_callback = stop_midway
+
+    res = passes.render_in_passes(scene, spp=2, passes=2, callback=on_pass)
+    assert res.interrupted and res.passes_done == 1 and seen == [1]
+    assert res.iterations == 2 * per_pass and res.iterations_done == per_pass + 24
+    assert integ.averaged_fraction == pytest.approx((24 - 8) / (per_pass - 8))
+    assert integ.progress_callback is None
+    assert np.all(np.isfinite(res.image)) and abs(res.image.mean() - 1.0) < 0.1
+
+
+def test_ctrl_c_keeps_the_finished_iterations_of_stochastic_iteration(tmp_path):
+    """A real SIGINT during `mi-plugins render` with an iterative integrator: the progress
+    bar counts iterations and the EXR holds the finished ones."""
+    import signal
+    import time
+    out = tmp_path / "partial.exr"
+    proc = subprocess.Popen(CLI + ["render", os.path.join("configs", "furnace_box.xml"), "-o", str(out),
+                                   "--spp", "1000", "--passes", "1000", "-D", "integrator=stochastic_ray"],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    buf = ""     # default stochastic_ray: 32 iterations per pass -> bar total 32000
+    # wait until the first pass (32 iterations) is done, so there is something to keep
+    while time.time() < deadline and max([0] + [int(v) for v in re.findall(r"(\d+)/32000", buf)]) < 40:
+        buf += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stdout + stderr
+    assert "interrupted after" in stdout and "iterations" in stdout
+    image, meta = exr.read(str(out))
+    done, total = (int(v) for v in meta["iterations"].split("/"))
+    assert 40 <= done < total == 32000
+    assert abs(image.mean() - 1.0) < 0.3 and np.all(np.isfinite(image))

@@ -28,7 +28,9 @@ CASES = [
     ("constant_brdf_phong_box", {"burn_in": 24}),
     ("sierpinski_phong_simulated", {"burn_in": 24}),
     ("sierpinski_diffuse_exact", {"burn_in": 24}),
+    ("sierpinski_diffuse_simulated", {"burn_in": 24}),
     ("constant_lightsource_box", {"burn_in": 24}),
+    ("constant_lightsource_sierpinski", {"burn_in": 24}),
 ]
 
 

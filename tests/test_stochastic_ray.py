@@ -25,6 +25,7 @@ CASES = [
     ("constant_brdf_phong_box", {"iterations": 96, "burn_in": 64}),
     ("sierpinski_phong_simulated", {"iterations": 96, "burn_in": 64}),
     ("constant_lightsource_box", {"iterations": 96, "burn_in": 64}),
+    ("constant_lightsource_sierpinski", {"iterations": 96, "burn_in": 64}),
 ]
 
 
