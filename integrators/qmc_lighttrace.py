@@ -127,7 +127,8 @@ class QMCLightTraceIntegrator(mi.SamplingIntegrator):
     def _trace_particles(self, scene, table, start, count, seed):
         """Deposit the power of paths start .. start + count - 1; returns (reflected power
         per triangle as numpy (K, 3), sum of emitted power weights (3,))."""
-        index = dr.arange(mi.UInt32, start, start + count)
+        # opaque offset: every batch reuses the same kernels instead of baking `start` in
+        index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)
         u = lambda d: self._u(index, d, seed)
         # light choice by dimension 0, rescaled and reused with dimension 1 for the position
         emitter_index, choice_weight, u0 = scene.sample_emitter(u(0))
