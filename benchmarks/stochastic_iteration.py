@@ -188,7 +188,8 @@ def methods(args):
     doubling = [2 ** k for k in range(20)]
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
-    rb = lambda n: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in, resolution=args.bundle_resolution), 1)
+    rb = lambda n: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in, resolution=args.bundle_resolution,
+                         chains=args.bundle_chains), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),
@@ -440,7 +441,7 @@ def count_rays(case, method, budgets):
     burn = (marks[integ.burn_in] - marks[0]) / max(integ.burn_in, 1)
     averaged = (marks[total] - marks[integ.burn_in]) / (total - integ.burn_in)
     res = integ.resolution
-    lines = math.pi / 4 * res * res    # lines inside the bounding disk (expected number)
+    lines = math.pi / 4 * res * res * integ.chains   # lines inside the bounding disks (expected number)
     counts = {b: int(round(method.config(b)[0]["burn_in"] * burn + (b - integ.burn_in) * averaged)) for b in budgets}
     return counts, ("instrumented, %d bundle rays per iteration (%.1f hits per line), %d per averaged iteration"
                     % (burn, prelim / (total * lines) - 1.0, averaged))
@@ -531,6 +532,7 @@ def main():
     p.add_argument("--burn-in", type=int, default=8, help="burn_in of stochastic_ray and ray_bundle")
     p.add_argument("--sr-iterations", type=int, default=64, help="stochastic_ray steps per chain")
     p.add_argument("--bundle-resolution", type=int, default=64, help="ray_bundle lines per side")
+    p.add_argument("--bundle-chains", type=int, default=64, help="ray_bundle chains run in lockstep")
     p.add_argument("--room-cells", type=int, default=8, help="quads per wall side in the room")
     p.add_argument("--ref-spp", type=int, default=None, help="room reference spp (default 16384, quick 4096)")
     p.add_argument("--max-points", type=int, default=14, help="most budgets per curve")
@@ -552,9 +554,10 @@ def main():
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     meths = {k: v for k, v in methods(args).items() if k in inames}
     scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp)
-    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d; ladders double until "
-          "a render takes %.2f s; %d x %d px, llvm_ad_rgb, %d threads\n"
-          % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, seconds, args.resolution,
+    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d; ladders "
+          "double until a render takes %.2f s; %d x %d px, llvm_ad_rgb, %d threads\n"
+          % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, seconds,
+             args.resolution,
              args.resolution, dr.thread_count()))
     results, warns, notes = {}, [], []
     for sname, case in scenes.items():

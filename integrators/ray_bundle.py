@@ -16,36 +16,46 @@ DIRECTION_SEQUENCES = ("independent", "halton", "hammersley", "pi")
 ESTIMATES = ("gather", "patch")
 
 
-def direction_samples(kind, count, seed):
-    """``count`` points of [0,1)^2 that pick the global directions, one per iteration.
+def direction_samples(kind, count, seed, chains=1):
+    """``count`` points of [0,1)^2 per chain that pick the global directions, one per
+    iteration: numpy array (count, chains, 2).
 
     'independent': pseudo-random (numpy PCG64 seeded by ``seed``); 'halton': bases 2, 3
     (points 1 .. count); 'hammersley': (n/count, radical inverse base 2), whose first
     coordinate only grows (the paper's figure 7 failure); 'pi': the paper's
     q_n = {(pi - 2) q_{n-1}} scheme (kept modulo 100000 as in the paper; a value that
     falls below 1 is restarted at random, because x -> 1.14 x leaves small values only
-    slowly), consecutive values paired. The quasi-random sequences get a random
-    Cranley-Patterson shift from ``seed`` (only of the second coordinate for Hammersley,
-    whose ordering is the point of it), so that seeds differ."""
+    slowly), consecutive values paired. Every chain of the quasi-random sequences gets
+    its own random Cranley-Patterson shift from ``seed`` (only of the second coordinate
+    for Hammersley, whose ordering is the point of it), so that seeds and chains differ."""
     rng = np.random.default_rng(seed)
     if kind == "independent":
-        return rng.random((count, 2))
+        return rng.random((count, chains, 2))
     if kind == "halton":
         pts = qmc.points("halton", count, 2, start=1)
     elif kind == "hammersley":
         pts = qmc.points("hammersley", count, 2)
         pts[:, 0] += 0.5 / count          # centred: (n + 1/2) / count
     else:  # 'pi'
-        q = 1.0 + 99999.0 * rng.random()
-        vals = []
-        for _ in range(2 * count):        # one scalar recurrence step per iteration
-            q = ((math.pi - 2.0) * q) % 100000.0
-            if q < 1.0:
-                q += 1.0 + 99999.0 * rng.random()
-            vals.append(q - math.floor(q))
-        pts = np.array(vals).reshape(count, 2)
-    shift = rng.random(2) if kind != "hammersley" else np.array([0.0, rng.random()])
-    return np.mod(pts + shift, 1.0)
+        return np.stack([_pi_sequence(count, rng) for _ in range(chains)], axis=1)
+    pts = np.repeat(pts[:, None, :], chains, axis=1)
+    shift = rng.random((chains, 2))
+    if kind == "hammersley":
+        shift[:, 0] = 0.0
+    return np.mod(pts + shift[None], 1.0)
+
+
+def _pi_sequence(count, rng):
+    """``count`` 2-d points of the paper's q_n = {(pi - 2) q_{n-1}} scheme (a scalar
+    recurrence: one step per value), with a random start and shift."""
+    q = 1.0 + 99999.0 * rng.random()
+    vals = []
+    for _ in range(2 * count):
+        q = ((math.pi - 2.0) * q) % 100000.0
+        if q < 1.0:
+            q += 1.0 + 99999.0 * rng.random()
+        vals.append(q - math.floor(q))
+    return np.mod(np.array(vals).reshape(count, 2) + rng.random(2), 1.0)
 
 
 def uniform_sphere_directions(samples):
@@ -57,9 +67,26 @@ def uniform_sphere_directions(samples):
     return np.stack([np.array(d.x), np.array(d.y), np.array(d.z)], axis=1).astype(np.float64)
 
 
-def _opaque_dir(v):
-    # opaque, so that a new direction does not recompile the kernels
-    return mi.Vector3f(*(dr.opaque(mi.Float, float(c)) for c in v))
+def _chain_directions(dirs):
+    """numpy (chains, 3) -> Vector3f with one direction per chain (a fresh buffer every
+    iteration, so a new direction does not recompile the kernels)."""
+    return mi.Vector3f(*(mi.Float(np.ascontiguousarray(dirs[:, c], dtype=np.float32)) for c in range(3)))
+
+
+class ChainLayout:
+    """Lane bookkeeping for ``chains`` independent chains run in lockstep: patch ``t``
+    of chain ``b`` is slot ``b * count + t`` of the radiance arrays."""
+
+    def __init__(self, table, chains):
+        self.table, self.chains, self.count = table, chains, table.count
+        self.slots = chains * table.count
+
+    def slot_triangle_chain(self):
+        slot = dr.arange(mi.UInt32, self.slots)
+        return slot % self.count, slot // self.count
+
+    def slot_of(self, tri, chain):
+        return chain * self.count + tri
 
 
 class RayBundleIntegrator(mi.SamplingIntegrator):
@@ -82,13 +109,17 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
     (with ``bidirectional`` both :math:`\pm\omega` are used and each gets weight
     :math:`2\pi`). Emission and BSDF are evaluated at a uniformly random point of each
     patch every iteration, so textures are averaged without bias. Memory is
-    O(triangles + resolution^2).
+    O(chains x (triangles + resolution^2)).
 
     .. list-table::
        * - Parameter, type, default, range: meaning
        * - ``iterations``, int, 64, >= 1: global directions (transfers) per render pass
        * - ``burn_in``, int, 8, 0 .. iterations-1: iterations left out of the image average
        * - ``resolution``, int, 128, >= 1: lines per side of the bundle
+       * - ``chains``, int, 1, >= 1: independent chains (own direction sequence, own
+           patch radiances) run in lockstep, one kernel per iteration for all of them;
+           the image averages the chains. 1 is the paper's algorithm; more chains use the
+           cores better when ``resolution^2`` or the triangle count is small
        * - ``bidirectional``, bool, true: use every line in both directions
        * - ``estimate``, string, 'gather': 'gather' (per pixel, reflect the stored radiance
            arriving along the bundle direction(s) at the visible point toward the eye) or
@@ -98,8 +129,9 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
            sequences and bias the result (paper section 6.1).
        * - ``hide_emitters``, bool, false: do not show directly visible emitters
 
-    ``mi.render(scene, spp=k)`` runs ``iterations * k`` global iterations; every averaged
-    iteration traces one fresh camera sample per pixel (work linear in ``k``).
+    ``mi.render(scene, spp=k)`` runs ``iterations * k`` global iterations of every chain;
+    every averaged iteration traces one fresh camera sample per pixel and chain (work
+    linear in ``k`` and in ``chains``).
 
     Progress: ``integrator.progress_callback = f``; ``f(done, total)`` after every
     iteration, return ``False`` to stop early; Ctrl-C also stops early; the finished
@@ -119,6 +151,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         self.iterations = int_param(props, "iterations", 64, 1, None, who)
         self.burn_in = int_param(props, "burn_in", min(8, self.iterations - 1), 0, self.iterations - 1, who)
         self.resolution = int_param(props, "resolution", 128, 1, None, who)
+        self.chains = int_param(props, "chains", 1, 1, None, who)
         self.bidirectional = bool_param(props, "bidirectional", True)
         self.estimate = choice_param(props, "estimate", "gather", ESTIMATES, who)
         self.direction_sequence = choice_param(props, "direction_sequence", "independent", DIRECTION_SEQUENCES, who)
@@ -127,14 +160,18 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
 
     def iteration_count(self, spp):
-        """Global iterations of a render with ``spp``: ``iterations * spp``."""
+        """Global iterations of a render with ``spp``: ``iterations * spp`` (each advances
+        every chain)."""
         return self.iterations * int(spp)
 
     # ------------------------------------------------------------------ patches
-    def _patch_interaction(self, table, rng, out_dir):
-        tri = dr.arange(mi.UInt32, table.count)
-        si = table.surface_interaction(tri, mi.Point2f(rng.next_float32(), rng.next_float32()), out_dir)
-        return si
+    def _patch_interaction(self, layout, rng, out_dirs):
+        """A uniformly random point of every patch of every chain, seen from the chain's
+        direction ``out_dirs`` (one per chain)."""
+        tri, chain = layout.slot_triangle_chain()
+        out = dr.gather(mi.Vector3f, out_dirs, chain)
+        si = layout.table.surface_interaction(tri, mi.Point2f(rng.next_float32(), rng.next_float32()), out)
+        return si, tri, chain, out
 
     def _emission(self, scene, si):
         return mi.Color3f(si.emitter(scene).eval(si))
@@ -148,21 +185,25 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         return dr.select(cos_in > 1e-6, value / cos_in, 0.0) * incoming
 
     # ------------------------------------------------------------------ transfer
-    def _transfer(self, scene, table, d, L_fwd, L_bwd, rng, center, radius):
-        """Walk all lines of a bundle along ``d``; returns the radiance power per unit
-        projected area arriving at each patch along +d (from L_fwd) and along -d (from
-        L_bwd), summed over the lines (i.e. sum_j A(i,j,+-d) L_j)."""
-        res = self.resolution
-        n_lines = res * res
-        frame = mi.Frame3f(d)
+    def _transfer(self, scene, layout, dirs, L_fwd, L_bwd, rng, center, radius):
+        """Walk all lines of every chain's bundle along its direction ``d`` (``dirs``: one
+        per chain); returns the radiance power per unit projected area arriving at each
+        patch along +d (from L_fwd) and along -d (from L_bwd), summed over the lines
+        (i.e. sum_j A(i,j,+-d) L_j), per chain."""
+        table, res = layout.table, self.resolution
+        per_chain = res * res
+        n_lines = per_chain * layout.chains
         k = dr.arange(mi.UInt32, n_lines)
+        chain, line = k // per_chain, k % per_chain
+        d = dr.gather(mi.Vector3f, dirs, chain)
+        frame = mi.Frame3f(d)
         cell = 2.0 * radius / res
-        u = (mi.Float(k % res) + rng.next_float32()) * cell - radius
-        v = (mi.Float(k // res) + rng.next_float32()) * cell - radius
+        u = (mi.Float(line % res) + rng.next_float32()) * cell - radius
+        v = (mi.Float(line // res) + rng.next_float32()) * cell - radius
         origin = center + frame.s * u + frame.t * v - d * (1.01 * radius)
-        ray = mi.Ray3f(origin, mi.Vector3f(d))
-        in_fwd = dr.zeros(mi.Color3f, table.count)
-        in_bwd = dr.zeros(mi.Color3f, table.count)
+        ray = mi.Ray3f(origin, d)
+        in_fwd = dr.zeros(mi.Color3f, layout.slots)
+        in_bwd = dr.zeros(mi.Color3f, layout.slots)
         delta_area = cell * cell
         active = (u * u + v * v) <= radius * radius
 
@@ -173,20 +214,29 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
             tri = table.triangle_index(si.shape, si.prim_index)
             n = dr.gather(mi.Normal3f, table.normal, tri, hit)
             cos_d = dr.dot(n, d)
+            slot = layout.slot_of(tri, chain)
             exchange = hit & prev_fwd & (cos_d < 0)
-            dr.scatter_add(in_fwd, dr.gather(mi.Color3f, L_fwd, prev, exchange) * delta_area, tri, exchange, mode=SPLAT_MODE)
-            dr.scatter_add(in_bwd, dr.gather(mi.Color3f, L_bwd, tri, exchange) * delta_area, prev, exchange, mode=SPLAT_MODE)
-            ray = si.spawn_ray(mi.Vector3f(d))
-            return ray, hit, tri, hit & (cos_d > 0)
+            dr.scatter_add(in_fwd, dr.gather(mi.Color3f, L_fwd, prev, exchange) * delta_area, slot, exchange, mode=SPLAT_MODE)
+            dr.scatter_add(in_bwd, dr.gather(mi.Color3f, L_bwd, slot, exchange) * delta_area, prev, exchange, mode=SPLAT_MODE)
+            ray = si.spawn_ray(d)
+            return ray, hit, slot, hit & (cos_d > 0)
 
         dr.while_loop((ray, active, dr.zeros(mi.UInt32, n_lines), mi.Bool(False)),
                       lambda ray, active, prev, prev_fwd: active, body)
         return in_fwd, in_bwd
 
     # ------------------------------------------------------------------ image
-    def _gather(self, scene, table, paths, d, L_fwd, L_bwd, weight):
+    def _camera_chains(self, layout, paths, dirs):
+        """Chain of each camera sample (``chains`` samples per pixel, one per chain) and
+        that chain's direction."""
+        chain = dr.arange(mi.UInt32, paths.count) % layout.chains
+        return chain, dr.gather(mi.Vector3f, dirs, chain)
+
+    def _gather(self, scene, layout, paths, dirs, L_fwd, L_bwd, weight):
         """Per camera sample: reflect the stored radiance arriving at the visible point
         along +d (from the patch seen in direction -d) and along -d toward the eye."""
+        table = layout.table
+        chain, d = self._camera_chains(layout, paths, dirs)
         si = scene.ray_intersect(paths.ray, paths.valid)
         valid = paths.valid & si.is_valid()
         bsdf = si.bsdf(paths.ray)
@@ -203,21 +253,24 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
             tri = table.triangle_index(src.shape, src.prim_index)
             n_src = dr.gather(mi.Normal3f, table.normal, tri, ok)
             ok &= dr.dot(n_src, travel) > 0
-            radiance = dr.gather(mi.Color3f, L, tri, ok)
+            radiance = dr.gather(mi.Color3f, L, layout.slot_of(tri, chain), ok)
             f_cos = mi.Color3f(bsdf.eval(ctx, si, wo, ok))
             result += dr.select(ok, f_cos * radiance, 0.0)
         return paths.throughput * result * weight
 
-    def _patch_estimate(self, scene, table, paths, d, in_fwd, in_bwd, weight):
+    def _patch_estimate(self, scene, layout, paths, dirs, in_fwd, in_bwd, weight):
+        table = layout.table
+        chain, d = self._camera_chains(layout, paths, dirs)
         si = scene.ray_intersect(paths.ray, paths.valid)
         valid = paths.valid & si.is_valid()
         tri = table.triangle_index(si.shape, si.prim_index)
         area = dr.gather(mi.Float, table.area, tri, valid)
+        slot = layout.slot_of(tri, chain)
         result = mi.Color3f(0.0)
         for sign, incoming in ((1.0, in_fwd), (-1.0, in_bwd)):
             if incoming is None:
                 continue
-            inc = dr.gather(mi.Color3f, incoming, tri, valid) / dr.maximum(area, 1e-30)
+            inc = dr.gather(mi.Color3f, incoming, slot, valid) / dr.maximum(area, 1e-30)
             result += dr.select(valid, self._reflect(si, inc, -d * sign), 0.0)
         return paths.throughput * result * weight
 
@@ -232,6 +285,32 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                           "on them; use stochastic_ray or path for such scenes." % ", ".join(names),
                           RuntimeWarning, stacklevel=2)
 
+    def _initial_radiance(self, scene, layout, rng_patch, dirs):
+        """Emission of every patch along +d (and -d when bidirectional): L_0 = Le."""
+        si, _, _, out = self._patch_interaction(layout, rng_patch, dirs)
+        L_fwd = self._emission(scene, si)
+        L_bwd = None
+        if self.bidirectional:
+            si_b, _, _, _ = self._patch_interaction(layout, rng_patch, -dirs)
+            L_bwd = self._emission(scene, si_b)
+        return L_fwd, L_bwd
+
+    def _reflect_into(self, scene, layout, rng_patch, dirs, new_dirs, in_fwd, in_bwd, weight):
+        """L_new = Le(new direction) + weight * f * (incoming along +-d) / A_i, per patch
+        and chain, for +new_dirs (and -new_dirs when bidirectional)."""
+        new_L = []
+        for out_dirs in ((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
+            si, tri, chain, _ = self._patch_interaction(layout, rng_patch, out_dirs)
+            d = dr.gather(mi.Vector3f, dirs, chain)
+            # degenerate triangles: never hit, no NaN
+            area = dr.maximum(dr.gather(mi.Float, layout.table.area, tri), 1e-30)
+            L = self._emission(scene, si)
+            L += weight * self._reflect(si, in_fwd / area, -d)
+            if in_bwd is not None:
+                L += weight * self._reflect(si, in_bwd / area, d)
+            new_L.append(L)
+        return new_L[0], (new_L[1] if self.bidirectional else None)
+
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         sensor = resolve_sensor(scene, sensor)
         film = sensor.film()
@@ -240,7 +319,8 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         n_pix = width * height
         spp = sensor_spp(sensor, spp)
         seed = int(seed)
-        table = MeshTable(scene, "ray_bundle")
+        chains = self.chains
+        layout = ChainLayout(MeshTable(scene, "ray_bundle"), chains)
         self._warn_delta(scene)
 
         bbox = scene.bbox()
@@ -248,57 +328,42 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         radius = float(dr.norm(bbox.extents())) * 0.5 * 1.001 + 1e-6
         total = self.iterations * spp
         burn_in = self.burn_in
-        samples = direction_samples(self.direction_sequence, total + 1, seed)
-        dirs = uniform_sphere_directions(samples)
+        samples = direction_samples(self.direction_sequence, total + 1, seed, chains)
+        all_dirs = uniform_sphere_directions(samples.reshape(-1, 2)).reshape(total + 1, chains, 3)
         weight = 2.0 * math.pi if self.bidirectional else 4.0 * math.pi
 
-        rng_lines = mi.PCG32(self.resolution ** 2, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 7),
-                             initseq=mi.UInt64(dr.arange(mi.UInt32, self.resolution ** 2)))
-        rng_patch = mi.PCG32(table.count, initstate=dr.opaque(mi.UInt64, seed * 1000003 + 11),
-                             initseq=mi.UInt64(dr.arange(mi.UInt32, table.count)))
+        n_lines = self.resolution ** 2 * chains
+        rng_lines = mi.PCG32(n_lines, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 7),
+                             initseq=mi.UInt64(dr.arange(mi.UInt32, n_lines)))
+        rng_patch = mi.PCG32(layout.slots, initstate=dr.opaque(mi.UInt64, seed * 1000003 + 11),
+                             initseq=mi.UInt64(dr.arange(mi.UInt32, layout.slots)))
 
-        d = _opaque_dir(dirs[0])
-        si = self._patch_interaction(table, rng_patch, d)
-        L_fwd = self._emission(scene, si)
-        L_bwd = None
-        if self.bidirectional:
-            si_b = self._patch_interaction(table, rng_patch, -d)
-            L_bwd = self._emission(scene, si_b)
+        L_fwd, L_bwd = self._initial_radiance(scene, layout, rng_patch, _chain_directions(all_dirs[0]))
         dr.eval(L_fwd, L_bwd, rng_patch.state)
 
         accum = dr.zeros(mi.Float, n_pix * 3)
         progress = Progress(self, total, burn_in)
         try:
             for m in progress:
-                d = _opaque_dir(dirs[m])
-                in_fwd, in_bwd = self._transfer(scene, table, d, L_fwd,
+                dirs = _chain_directions(all_dirs[m])
+                in_fwd, in_bwd = self._transfer(scene, layout, dirs, L_fwd,
                                                 L_bwd if L_bwd is not None else L_fwd, rng_lines, center, radius)
                 if not self.bidirectional:
                     in_bwd = None
                 new_accum = accum
                 if m >= burn_in:
-                    # one fresh camera sample per pixel and iteration
-                    paths = camera_paths(scene, sensor, 1, seed * 1000081 + m, -1, self.hide_emitters)
+                    # one fresh camera sample per pixel, chain and iteration
+                    paths = camera_paths(scene, sensor, chains, seed * 1000081 + m, -1, self.hide_emitters)
                     if self.estimate == "gather":
-                        est = self._gather(scene, table, paths, d, L_fwd, L_bwd, weight)
+                        est = self._gather(scene, layout, paths, dirs, L_fwd, L_bwd, weight)
                     else:
-                        est = self._patch_estimate(scene, table, paths, d, in_fwd, in_bwd, weight)
+                        est = self._patch_estimate(scene, layout, paths, dirs, in_fwd, in_bwd, weight)
                     new_accum = accum + paths.emission_image
                     for c in range(3):
-                        dr.scatter_add(new_accum, est[c], paths.pixel * 3 + c)
-                # new global direction and reflection into it
-                d_new = _opaque_dir(dirs[m + 1])
-                new_L = []
-                for out in ((d_new, -d_new) if self.bidirectional else (d_new,)):
-                    si = self._patch_interaction(table, rng_patch, out)
-                    L = self._emission(scene, si)
-                    area = dr.maximum(table.area, 1e-30)   # degenerate triangles: never hit, no NaN
-                    L += weight * self._reflect(si, in_fwd / area, -d)
-                    if in_bwd is not None:
-                        L += weight * self._reflect(si, in_bwd / area, d)
-                    new_L.append(L)
-                L_fwd_new = new_L[0]
-                L_bwd_new = new_L[1] if self.bidirectional else None
+                        dr.scatter_add(new_accum, est[c] / chains, paths.pixel * 3 + c, mode=SPLAT_MODE)
+                # new global direction per chain and reflection into it
+                L_fwd_new, L_bwd_new = self._reflect_into(scene, layout, rng_patch, dirs,
+                                                          _chain_directions(all_dirs[m + 1]), in_fwd, in_bwd, weight)
                 dr.eval(L_fwd_new, L_bwd_new, new_accum, rng_lines.state, rng_patch.state)
                 L_fwd, L_bwd, accum = L_fwd_new, L_bwd_new, new_accum
         except KeyboardInterrupt:
