@@ -139,21 +139,21 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         si = scene.ray_intersect(ray, carries)
         hit = si.is_valid() & carries
         depth_hit = depth + 1
-        # --- image estimate: connect the new hit point to the camera
+        # --- one BSDF call evaluates toward the camera (image estimate) and samples the
+        #     continuation direction
         can_splat = hit & (depth_hit + 1 <= max_depth) & do_splat
-        self._splat(scene, sensor, si, power, rng, splat, ctx, can_splat, width, height)
-        # --- next ray: continue from the hit (BSDF sampled) or restart from the lights
+        ds, sensor_w = sensor.sample_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), can_splat)
+        to_camera = si.to_local(ds.d)
         bsdf = si.bsdf(ray)
-        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
-        w = mi.Color3f(w)
-        # shading-normal correction of adjoint transport (Veach, p. 158)
+        f_camera, _, bs, w = bsdf.eval_pdf_sample(ctx, si, to_camera, rng.next_float32(),
+                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
+        # --- image estimate: connect the new hit point to the camera
+        self._splat(scene, si, ds, sensor_w, to_camera, mi.Color3f(f_camera), power, splat,
+                    can_splat & (ds.pdf > 0), width, height)
+        # --- next ray: continue from the hit (BSDF sampled) or restart from the lights
+        w = mi.Color3f(w) * shading_normal_correction(si, bs.wo)
         wo_world = si.to_world(bs.wo)
-        wi_world = si.to_world(si.wi)
-        wi_geo, wo_geo = dr.dot(si.n, wi_world), dr.dot(si.n, wo_world)
-        consistent = (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(bs.wo) > 0)
-        correction = dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo / dr.maximum(dr.abs(mi.Frame3f.cos_theta(bs.wo) * wi_geo), 1e-12))
-        w = w * correction
-        can_continue = hit & consistent & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
+        can_continue = hit & geometric_side_consistent(si, bs.wo) & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
         cont = dr.select(can_continue, power * w, 0.0)
         cont_s = (dr.abs(cont.x) + dr.abs(cont.y) + dr.abs(cont.z)) / 3.0
         p_restart = phi_e / (phi_e + cont_s)
@@ -164,21 +164,32 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
         new_depth = dr.select(restart, 0, depth_hit)
         return new_ray, new_power, new_depth
 
-    def _splat(self, scene, sensor, si, power, rng, splat, ctx, active, width, height):
-        ds, sensor_w = sensor.sample_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), active)
-        active &= ds.pdf > 0
+    def _splat(self, scene, si, ds, sensor_w, to_camera, f_camera, power, splat, active, width, height):
+        """Add the hit point's contribution, seen through the camera sample ``ds``, to its
+        pixel (light tracing with direct pixel contribution)."""
         active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
-        wo = si.to_local(ds.d)
-        bsdf = si.bsdf()
-        value = mi.Color3f(bsdf.eval(ctx, si, wo, active))
-        wi_world = si.to_world(si.wi)
-        wi_geo, wo_geo = dr.dot(si.n, wi_world), dr.dot(si.n, ds.d)
-        active &= (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(wo) > 0)
-        correction = dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo) * wi_geo), 1e-12))
-        value = value * power * mi.Color3f(sensor_w) * correction
+        active &= geometric_side_consistent(si, to_camera)
+        value = f_camera * power * mi.Color3f(sensor_w) * shading_normal_correction(si, to_camera)
         px = mi.Int32(dr.floor(ds.uv.x))
         py = mi.Int32(dr.floor(ds.uv.y))
         active &= (px >= 0) & (py >= 0) & (px < width) & (py < height)
         index = mi.UInt32(py * width + px)
         for c in range(3):
             dr.scatter_add(splat, value[c], index * 3 + c, active, mode=SPLAT_MODE)
+
+
+def geometric_side_consistent(si, wo_local):
+    """Both si.wi and ``wo_local`` lie on the same side of the geometric and the shading
+    normal (otherwise adjoint transport through shading normals leaks light)."""
+    wi_geo = dr.dot(si.n, si.to_world(si.wi))
+    wo_geo = dr.dot(si.n, si.to_world(wo_local))
+    return (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(wo_local) > 0)
+
+
+def shading_normal_correction(si, wo_local):
+    """|cos_sh(wi) cos_geo(wo) / (cos_sh(wo) cos_geo(wi))|: the adjoint BSDF correction
+    for shading normals (Veach 1997, p. 158)."""
+    wi_geo = dr.dot(si.n, si.to_world(si.wi))
+    wo_geo = dr.dot(si.n, si.to_world(wo_local))
+    return dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo
+                  / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo_local) * wi_geo), 1e-12))
