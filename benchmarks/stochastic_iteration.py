@@ -189,7 +189,7 @@ def methods(args):
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
     rb = lambda n: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in, resolution=args.bundle_resolution,
-                         chains=args.bundle_chains), 1)
+                         chains=args.bundle_chains, estimate=args.bundle_estimate), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),
@@ -533,6 +533,7 @@ def main():
     p.add_argument("--sr-iterations", type=int, default=64, help="stochastic_ray steps per chain")
     p.add_argument("--bundle-resolution", type=int, default=64, help="ray_bundle lines per side")
     p.add_argument("--bundle-chains", type=int, default=64, help="ray_bundle chains run in lockstep")
+    p.add_argument("--bundle-estimate", choices=("gather", "patch"), default="gather", help="ray_bundle image estimate")
     p.add_argument("--room-cells", type=int, default=8, help="quads per wall side in the room")
     p.add_argument("--ref-spp", type=int, default=None, help="room reference spp (default 16384, quick 4096)")
     p.add_argument("--max-points", type=int, default=14, help="most budgets per curve")
@@ -554,9 +555,9 @@ def main():
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     meths = {k: v for k, v in methods(args).items() if k in inames}
     scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp)
-    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d; ladders "
+    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s; ladders "
           "double until a render takes %.2f s; %d x %d px, llvm_ad_rgb, %d threads\n"
-          % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, seconds,
+          % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, args.bundle_estimate, seconds,
              args.resolution,
              args.resolution, dr.thread_count()))
     results, warns, notes = {}, [], []
