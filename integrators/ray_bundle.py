@@ -171,7 +171,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         tri, chain = layout.slot_triangle_chain()
         out = dr.gather(mi.Vector3f, out_dirs, chain)
         si = layout.table.surface_interaction(tri, mi.Point2f(rng.next_float32(), rng.next_float32()), out)
-        return si, tri, chain, out
+        return si, tri, chain
 
     def _emission(self, scene, si):
         return mi.Color3f(si.emitter(scene).eval(si))
@@ -287,11 +287,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
 
     def _initial_radiance(self, scene, layout, rng_patch, dirs):
         """Emission of every patch along +d (and -d when bidirectional): L_0 = Le."""
-        si, _, _, out = self._patch_interaction(layout, rng_patch, dirs)
+        si, _, _ = self._patch_interaction(layout, rng_patch, dirs)
         L_fwd = self._emission(scene, si)
         L_bwd = None
         if self.bidirectional:
-            si_b, _, _, _ = self._patch_interaction(layout, rng_patch, -dirs)
+            si_b, _, _ = self._patch_interaction(layout, rng_patch, -dirs)
             L_bwd = self._emission(scene, si_b)
         return L_fwd, L_bwd
 
@@ -300,7 +300,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         and chain, for +new_dirs (and -new_dirs when bidirectional)."""
         new_L = []
         for out_dirs in ((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
-            si, tri, chain, _ = self._patch_interaction(layout, rng_patch, out_dirs)
+            si, tri, chain = self._patch_interaction(layout, rng_patch, out_dirs)
             d = dr.gather(mi.Vector3f, dirs, chain)
             # degenerate triangles: never hit, no NaN
             area = dr.maximum(dr.gather(mi.Float, layout.table.area, tri), 1e-30)
@@ -338,14 +338,14 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         rng_patch = mi.PCG32(layout.slots, initstate=dr.opaque(mi.UInt64, seed * 1000003 + 11),
                              initseq=mi.UInt64(dr.arange(mi.UInt32, layout.slots)))
 
-        L_fwd, L_bwd = self._initial_radiance(scene, layout, rng_patch, _chain_directions(all_dirs[0]))
+        dirs = _chain_directions(all_dirs[0])
+        L_fwd, L_bwd = self._initial_radiance(scene, layout, rng_patch, dirs)
         dr.eval(L_fwd, L_bwd, rng_patch.state)
 
         accum = dr.zeros(mi.Float, n_pix * 3)
         progress = Progress(self, total, burn_in)
         try:
             for m in progress:
-                dirs = _chain_directions(all_dirs[m])
                 in_fwd, in_bwd = self._transfer(scene, layout, dirs, L_fwd,
                                                 L_bwd if L_bwd is not None else L_fwd, rng_lines, center, radius)
                 if not self.bidirectional:
@@ -362,10 +362,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                     for c in range(3):
                         dr.scatter_add(new_accum, est[c] / chains, paths.pixel * 3 + c, mode=SPLAT_MODE)
                 # new global direction per chain and reflection into it
-                L_fwd_new, L_bwd_new = self._reflect_into(scene, layout, rng_patch, dirs,
-                                                          _chain_directions(all_dirs[m + 1]), in_fwd, in_bwd, weight)
+                new_dirs = _chain_directions(all_dirs[m + 1])
+                L_fwd_new, L_bwd_new = self._reflect_into(scene, layout, rng_patch, dirs, new_dirs,
+                                                          in_fwd, in_bwd, weight)
                 dr.eval(L_fwd_new, L_bwd_new, new_accum, rng_lines.state, rng_patch.state)
-                L_fwd, L_bwd, accum = L_fwd_new, L_bwd_new, new_accum
+                L_fwd, L_bwd, accum, dirs = L_fwd_new, L_bwd_new, new_accum, new_dirs
         except KeyboardInterrupt:
             progress.stop()  # Ctrl-C: keep the finished iterations
         image = accum / max(progress.averaged, 1)

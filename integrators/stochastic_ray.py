@@ -68,14 +68,11 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
     def _emitted_power(self, scene, seed):
         """A fixed positive scalar estimate of the total emitted power (only steers the
         restart probability; any positive value keeps the estimator unbiased)."""
-        n = 1 << 14
-        self._ray_eps = getattr(self, "_ray_eps", 0.0)
-        rng = mi.PCG32(n, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 12345))
-        ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
-                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), True)
-        w = mi.Color3f(weight)
-        value = float(dr.mean((dr.abs(w.x) + dr.abs(w.y) + dr.abs(w.z)) / 3.0, axis=None)[0]) if scene.emitters() else 0.0
-        return max(value, 1e-8)
+        if not scene.emitters():
+            return 1e-8
+        rng = mi.PCG32(1 << 14, initstate=dr.opaque(mi.UInt64, seed * 2654435761 + 12345))
+        _, w = self._sample_light_ray(scene, rng, mi.Bool(True))
+        return max(float(dr.mean((dr.abs(w.x) + dr.abs(w.y) + dr.abs(w.z)) / 3.0, axis=None)[0]), 1e-8)
 
     def _sample_light_ray(self, scene, rng, active):
         ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),

@@ -90,7 +90,7 @@ def _render(args):
         meta["iterations"] = "%d/%d" % (result.iterations_done, result.iterations)
     exr.write(args.output, result.image, meta)
     state = "interrupted after" if result.interrupted else "finished"
-    iterations = ", %d/%d iterations" % (result.iterations_done, result.iterations) if result.iterations else ""
+    iterations = ", %s iterations" % meta["iterations"] if result.iterations else ""
     print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
           % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, args.output))
     return 130 if result.interrupted and result.empty else 0

@@ -12,6 +12,28 @@ import mi_plugins  # noqa: E402,F401  (registers the plugins)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+def furnace_rmse(integrator, seeds, resolution):
+    """RMS over ``seeds`` of the per-image RMSE of ``integrator`` (a plugin dict) on the
+    furnace box (albedo 0.5, emission 0.5: radiance 1 everywhere), one render per seed."""
+    from mi_plugins import analytic
+    import numpy as np
+    case = analytic.furnace(0.5, 0.5, "box", resolution=resolution)
+    scene = case.scene(integrator)
+    exact = case.expected()
+    errs = [np.sqrt(np.mean((np.array(mi.render(scene, spp=1, seed=s)) - exact) ** 2)) for s in seeds]
+    return float(np.sqrt(np.mean(np.square(errs))))
+
+
+def scalar_variant_refusal(plugin_type):
+    """Output of loading ``plugin_type`` under the scalar_rgb variant in a fresh
+    interpreter: (refused, output). Refused means mi_plugins.register() or the plugin's
+    constructor raised (or the process failed)."""
+    r = run_python("import mitsuba as mi; mi.set_variant('scalar_rgb'); import mi_plugins\n"
+                   "try:\n    mi_plugins.register(); mi.load_dict({'type': '%s'})\n"
+                   "except Exception as e:\n    print('ERR', e)" % plugin_type)
+    return ("ERR" in r.stdout or r.returncode != 0), r.stdout + r.stderr
+
+
 def run_python(code, env=None, cwd=None):
     """Run a snippet in a fresh interpreter (variant state is process-global)."""
     full_env = dict(os.environ)
