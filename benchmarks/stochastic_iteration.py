@@ -1,5 +1,9 @@
 """Error versus wall time of `ray_bundle`, `stochastic_ray`, Mitsuba `path` and `ptracer`.
 
+`ray_bundle` runs twice: as the paper's algorithm (``ray_bundle``) and with
+``first_shot=true`` (``ray_bundle_fs``: direct light by a light sample with MIS, the
+bundles carrying only reflected radiance), same resolution, chains and estimate.
+
 Issue 4's benchmark: in one run, every integrator renders every scene at a ladder of
 budgets (doubling until a render takes --seconds), and the RMSE of each image against
 the exact image (analytic scenes) or a long `path` reference (the room) is recorded
@@ -53,7 +57,7 @@ from mi_plugins.analytic.case import AnalyticCase  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, ".cache")
-INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle")
+INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_fs")
 SCENES = ("furnace", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated", "sierpinski_phong_simulated", "room")
 DIFFUSE_SCENES = ("furnace", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated", "room")
 SIERPINSKI = SCENES[1:4]
@@ -188,13 +192,15 @@ def methods(args):
     doubling = [2 ** k for k in range(20)]
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
-    rb = lambda n: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in, resolution=args.bundle_resolution,
-                         chains=args.bundle_chains, estimate=args.bundle_estimate), 1)
+    rb = lambda n, fs=False: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
+                                   resolution=args.bundle_resolution, chains=args.bundle_chains,
+                                   estimate=args.bundle_estimate, first_shot=fs), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),
         "stochastic_ray": Method("stochastic_ray", doubling, lambda b: (dict(sr), b), "spp"),
         "ray_bundle": Method("ray_bundle", rb_ladder, rb, "iterations"),
+        "ray_bundle_fs": Method("ray_bundle_fs", rb_ladder, lambda n: rb(n, True), "iterations"),
     }
 
 
@@ -273,9 +279,11 @@ def _count(mask, width):
 
 class RayCounter:
     """Counts the active lanes of every Python call to Scene.ray_intersect,
-    ray_intersect_preliminary and ray_test (loops run in evaluated mode meanwhile)."""
+    ray_intersect_preliminary and ray_test, and the shadow rays of
+    sample_emitter_direction(..., test_visibility=True) (loops run in evaluated mode
+    meanwhile)."""
 
-    METHODS = ("ray_intersect", "ray_intersect_preliminary", "ray_test")
+    METHODS = ("ray_intersect", "ray_intersect_preliminary", "ray_test", "sample_emitter_direction")
 
     def __init__(self):
         self.counts = {m: 0 for m in self.METHODS}
@@ -294,7 +302,12 @@ class RayCounter:
                     mask = value
             counter.counts[name] += _count(mask, dr.width(ray.o))
             return original(scene, ray, *args, **kwargs)
-        return wrapper
+
+        def emitter_wrapper(scene, ref, sample, test_visibility=True, active=True):
+            if test_visibility:   # one shadow ray per active lane
+                counter.counts[name] += _count(active if isinstance(active, mi.Bool) else None, dr.width(ref.p))
+            return original(scene, ref, sample, test_visibility, active)
+        return emitter_wrapper if name == "sample_emitter_direction" else wrapper
 
     def __enter__(self):
         self.saved = {m: getattr(mi.Scene, m) for m in self.METHODS}
@@ -488,7 +501,7 @@ def plot(results, scenes, args):
     cols = 3
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(5.0 * cols, 4.0 * rows), squeeze=False)
-    colors = {"path": "C0", "ptracer": "C1", "stochastic_ray": "C2", "ray_bundle": "C3"}
+    colors = {"path": "C0", "ptracer": "C1", "stochastic_ray": "C2", "ray_bundle": "C3", "ray_bundle_fs": "C4"}
     for ax, panel in zip(axes.flat, panels):
         if panel == "figure4":
             for s, style in zip(SIERPINSKI, ("-o", "--s", ":^")):
@@ -555,7 +568,7 @@ def main():
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     meths = {k: v for k, v in methods(args).items() if k in inames}
     scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp)
-    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s; ladders "
+    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s (ray_bundle_fs: the same with first_shot=true); ladders "
           "double until a render takes %.2f s; %d x %d px, llvm_ad_rgb, %d threads\n"
           % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, args.bundle_estimate, seconds,
              args.resolution,
@@ -609,7 +622,7 @@ def report_scene(sname, case, res, meths, notes):
             "%.2f" % (rate / base_rate) if base_rate else "-", sum(p["compile"] for p in pts)))
     for mname in curves:
         extra = ""
-        if mname == "ray_bundle":
+        if mname.startswith("ray_bundle"):
             last = curves[mname][-1]
             extra = "; %.1f ms per iteration" % (1e3 * last["seconds"] / last["budget"])
         notes.append("rays %s / %s: %s%s" % (sname, mname, res["how"][mname], extra))
@@ -624,7 +637,7 @@ def summary(results, meths):
         curves = res["curves"]
         base = interp_loglog(curves["path"], res["t_star"])[0]
         base_rate = rays_per_second(curves["path"], res["rays"]["path"])
-        for mname in ("ray_bundle", "stochastic_ray"):
+        for mname in ("ray_bundle", "ray_bundle_fs", "stochastic_ray"):
             if mname not in curves:
                 continue
             pts = curves[mname]

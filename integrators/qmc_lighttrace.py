@@ -82,6 +82,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import qmc
+from mi_plugins.sampling import direct_light
 from mi_plugins.meshtable import MeshTable
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
@@ -278,9 +279,7 @@ class QMCLightTraceIntegrator(mi.SamplingIntegrator):
 
     def _direct(self, scene, sampler, si, bsdf, active):
         """One light sample: L0 reflected once (T_f L0), visibility-tested."""
-        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True, active)
-        f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), active)
-        return dr.select(active & (ds.pdf > 0), f * em_weight, 0.0)
+        return direct_light(scene, si, bsdf, sampler.next_2d(), active)
 
     def _share(self, gather, tri, width, height, spp):
         """Average each gather result with those of the 8 neighbouring pixels (same sample

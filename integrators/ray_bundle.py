@@ -9,6 +9,7 @@ import numpy as np
 
 from mi_plugins import qmc
 from mi_plugins.meshtable import MeshTable
+from mi_plugins.sampling import direct_light
 from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param, choice_param,
                                                       resolve_sensor, sensor_spp, image_to_film, camera_paths, SPLAT_MODE)
 
@@ -73,6 +74,22 @@ def _chain_directions(dirs):
     return mi.Vector3f(*(mi.Float(np.ascontiguousarray(dirs[:, c], dtype=np.float32)) for c in range(3)))
 
 
+def _bounding_sphere(scene, table):
+    """Centre (the bounding box's) and radius (farthest vertex, slightly enlarged) of a
+    sphere around all triangles: tighter than the box's circumsphere for round scenes,
+    so fewer bundle lines miss everything."""
+    center = np.array(scene.bbox().center(), dtype=np.float64)
+    radius = float(np.sqrt(np.max(np.sum((table.vertices_np - center) ** 2, axis=-1))))
+    return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
+
+
+def _direct_light_mis(scene, si, bsdf, rng, active):
+    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS."""
+    light_sample = mi.Point2f(rng.next_float32(), rng.next_float32())
+    bsdf_sample = (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()))
+    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample)
+
+
 class ChainLayout:
     """Lane bookkeeping for ``chains`` independent chains run in lockstep: patch ``t``
     of chain ``b`` is slot ``b * count + t`` of the radiance arrays."""
@@ -121,6 +138,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
            the image averages the chains. 1 is the paper's algorithm; more chains use the
            cores better when ``resolution^2`` or the triangle count is small
        * - ``bidirectional``, bool, true: use every line in both directions
+       * - ``first_shot``, bool, false: direct light by next-event estimation (one
+           visibility-tested light sample per patch point and per camera sample, as in
+           the "first shot" of radiosity); the bundles then carry only reflected
+           radiance. Unbiased like the default; much less noise where direct light
+           dominates (small lights). false is the paper's algorithm
        * - ``estimate``, string, 'gather': 'gather' (per pixel, reflect the stored radiance
            arriving along the bundle direction(s) at the visible point toward the eye) or
            'patch' (per pixel, the patch-averaged incoming radiance of the visible patch)
@@ -136,6 +158,13 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
     Progress: ``integrator.progress_callback = f``; ``f(done, total)`` after every
     iteration, return ``False`` to stop early; Ctrl-C also stops early; the finished
     iterations make the image.
+
+    With ``first_shot`` the stored radiance is the reflected part
+    :math:`L_r = L - L^e` and the iteration is
+    :math:`L_r^{new}[i] = (T L^e)_i(\omega_{m+1}) + 4\pi f_i \sum_j A(i,j,\omega_m)/A_i\, L_r[j]`
+    with :math:`T L^e` (direct light) estimated by one light sample at the patch point;
+    the image adds the directly seen emission, the direct light at the visible point
+    (one light sample) and the gathered or patch-averaged reflected radiance.
 
     Caveats: only triangle meshes (other shapes: ``NonMeshShapeError``). The radiance is
     constant per patch, so non-constant radiance over a patch is averaged (bias of order
@@ -153,6 +182,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         self.resolution = int_param(props, "resolution", 128, 1, None, who)
         self.chains = int_param(props, "chains", 1, 1, None, who)
         self.bidirectional = bool_param(props, "bidirectional", True)
+        self.first_shot = bool_param(props, "first_shot", False)
         self.estimate = choice_param(props, "estimate", "gather", ESTIMATES, who)
         self.direction_sequence = choice_param(props, "direction_sequence", "independent", DIRECTION_SEQUENCES, who)
         self.hide_emitters = bool_param(props, "hide_emitters", False)
@@ -173,8 +203,25 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         si = layout.table.surface_interaction(tri, mi.Point2f(rng.next_float32(), rng.next_float32()), out)
         return si, tri, chain
 
-    def _emission(self, scene, si):
+    def _source(self, scene, si, rng):
+        """The radiance a patch point sends toward ``si.wi`` without the bundles'
+        transport: its emission Le, or with ``first_shot`` the direct light it reflects
+        (T Le, one light sample drawn from ``rng``; no rays where ``si.wi`` is behind a
+        surface that neither transmits nor has a back side)."""
+        if self.first_shot:
+            bsdf = si.bsdf()
+            flags = bsdf.flags()
+            can_reach = ((mi.Frame3f.cos_theta(si.wi) > 0) | mi.has_flag(flags, mi.BSDFFlags.BackSide)
+                         | mi.has_flag(flags, mi.BSDFFlags.Transmission))
+            return _direct_light_mis(scene, si, bsdf, rng, can_reach)
         return mi.Color3f(si.emitter(scene).eval(si))
+
+    def _direct_at(self, scene, si, bsdf, valid, rng):
+        """Direct light at the camera samples' visible points with ``first_shot`` (the
+        bundles carry only reflected radiance then), else zero."""
+        if not self.first_shot:
+            return mi.Color3f(0.0)
+        return _direct_light_mis(scene, si, bsdf, rng, valid)
 
     def _reflect(self, si, incoming, towards_source):
         """f_i(incoming direction -> si.wi) * incoming / A_i, f from bsdf.eval / cos."""
@@ -232,7 +279,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         chain = dr.arange(mi.UInt32, paths.count) % layout.chains
         return chain, dr.gather(mi.Vector3f, dirs, chain)
 
-    def _gather(self, scene, layout, paths, dirs, L_fwd, L_bwd, weight):
+    def _gather(self, scene, layout, paths, dirs, L_fwd, L_bwd, weight, rng):
         """Per camera sample: reflect the stored radiance arriving at the visible point
         along +d (from the patch seen in direction -d) and along -d toward the eye."""
         table = layout.table
@@ -256,9 +303,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
             radiance = dr.gather(mi.Color3f, L, layout.slot_of(tri, chain), ok)
             f_cos = mi.Color3f(bsdf.eval(ctx, si, wo, ok))
             result += dr.select(ok, f_cos * radiance, 0.0)
-        return paths.throughput * result * weight
+        return paths.throughput * (result * weight + self._direct_at(scene, si, bsdf, valid, rng))
 
-    def _patch_estimate(self, scene, layout, paths, dirs, in_fwd, in_bwd, weight):
+    def _patch_estimate(self, scene, layout, paths, dirs, in_fwd, in_bwd, weight, rng):
+        """Per camera sample: reflect the patch-averaged incoming radiance of the visible
+        patch (sum_j A(i,j,+-d) L[j] / A_i) toward the eye at the visible point."""
         table = layout.table
         chain, d = self._camera_chains(layout, paths, dirs)
         si = scene.ray_intersect(paths.ray, paths.valid)
@@ -272,7 +321,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                 continue
             inc = dr.gather(mi.Color3f, incoming, slot, valid) / dr.maximum(area, 1e-30)
             result += dr.select(valid, self._reflect(si, inc, -d * sign), 0.0)
-        return paths.throughput * result * weight
+        return paths.throughput * (result * weight + self._direct_at(scene, si, si.bsdf(paths.ray), valid, rng))
 
     # ------------------------------------------------------------------ render
     def _warn_delta(self, scene):
@@ -286,25 +335,27 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                           RuntimeWarning, stacklevel=2)
 
     def _initial_radiance(self, scene, layout, rng_patch, dirs):
-        """Emission of every patch along +d (and -d when bidirectional): L_0 = Le."""
+        """Source radiance of every patch along +d (and -d when bidirectional): L_0 = Le
+        (with ``first_shot``: the direct light T Le)."""
         si, _, _ = self._patch_interaction(layout, rng_patch, dirs)
-        L_fwd = self._emission(scene, si)
+        L_fwd = self._source(scene, si, rng_patch)
         L_bwd = None
         if self.bidirectional:
             si_b, _, _ = self._patch_interaction(layout, rng_patch, -dirs)
-            L_bwd = self._emission(scene, si_b)
+            L_bwd = self._source(scene, si_b, rng_patch)
         return L_fwd, L_bwd
 
     def _reflect_into(self, scene, layout, rng_patch, dirs, new_dirs, in_fwd, in_bwd, weight):
         """L_new = Le(new direction) + weight * f * (incoming along +-d) / A_i, per patch
-        and chain, for +new_dirs (and -new_dirs when bidirectional)."""
+        and chain, for +new_dirs (and -new_dirs when bidirectional); with ``first_shot``
+        the direct light T Le replaces Le."""
         new_L = []
         for out_dirs in ((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
             si, tri, chain = self._patch_interaction(layout, rng_patch, out_dirs)
             d = dr.gather(mi.Vector3f, dirs, chain)
             # degenerate triangles: never hit, no NaN
             area = dr.maximum(dr.gather(mi.Float, layout.table.area, tri), 1e-30)
-            L = self._emission(scene, si)
+            L = self._source(scene, si, rng_patch)
             L += weight * self._reflect(si, in_fwd / area, -d)
             if in_bwd is not None:
                 L += weight * self._reflect(si, in_bwd / area, d)
@@ -323,9 +374,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         layout = ChainLayout(MeshTable(scene, "ray_bundle"), chains)
         self._warn_delta(scene)
 
-        bbox = scene.bbox()
-        center = mi.ScalarPoint3f(bbox.center())
-        radius = float(dr.norm(bbox.extents())) * 0.5 * 1.001 + 1e-6
+        center, radius = _bounding_sphere(scene, layout.table)
         total = self.iterations * spp
         burn_in = self.burn_in
         samples = direction_samples(self.direction_sequence, total + 1, seed, chains)
@@ -354,10 +403,12 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                 if m >= burn_in:
                     # one fresh camera sample per pixel, chain and iteration
                     paths = camera_paths(scene, sensor, chains, seed * 1000081 + m, -1, self.hide_emitters)
+                    rng_cam = mi.PCG32(paths.count, initstate=dr.opaque(mi.UInt64, seed * 1000099 + m * 31 + 5),
+                                       initseq=mi.UInt64(dr.arange(mi.UInt32, paths.count)))
                     if self.estimate == "gather":
-                        est = self._gather(scene, layout, paths, dirs, L_fwd, L_bwd, weight)
+                        est = self._gather(scene, layout, paths, dirs, L_fwd, L_bwd, weight, rng_cam)
                     else:
-                        est = self._patch_estimate(scene, layout, paths, dirs, in_fwd, in_bwd, weight)
+                        est = self._patch_estimate(scene, layout, paths, dirs, in_fwd, in_bwd, weight, rng_cam)
                     new_accum = accum + paths.emission_image
                     for c in range(3):
                         dr.scatter_add(new_accum, est[c] / chains, paths.pixel * 3 + c, mode=SPLAT_MODE)

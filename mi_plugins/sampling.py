@@ -7,6 +7,9 @@
   it does not change the traced kernel (no recompilation).
 - :func:`sample_hemisphere` / :func:`hemisphere_pdf`: the direction strategies of
   the simulated-emission estimators.
+- :func:`direct_light`: one visibility-tested light sample (next-event estimation)
+  reflected by a BSDF, shared by the final gathering of ``qmc_lighttrace`` and the
+  first shot of ``ray_bundle``.
 """
 import drjit as dr
 import mitsuba as mi
@@ -38,6 +41,41 @@ def hashed_rng(si, salt):
     state = (mi.UInt64(a) << 32) | mi.UInt64(b)
     seq = (mi.UInt64(c) << 32) | mi.UInt64(d)
     return mi.PCG32(dr.width(state), state, seq)
+
+
+def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None):
+    """Direct illumination reflected at ``si`` toward ``si.wi`` (next-event estimation).
+
+    Without ``bsdf_sample``: one emitter sample (``scene.sample_emitter_direction``,
+    visibility tested), f * Le * G / pdf. With ``bsdf_sample = (u, (u1, u2))``: that
+    light sample plus one BSDF sample whose ray is traced to the emission it hits,
+    combined by multiple importance sampling (power heuristic), which keeps the
+    variance bounded where emitters are large and close (furnaces, corners). Zero where
+    ``active`` is false."""
+    ctx = mi.BSDFContext()
+    ds, em_weight = scene.sample_emitter_direction(si, light_sample, True, active)
+    active_l = active & (ds.pdf > 0)
+    f, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_l)
+    if bsdf_sample is None:
+        return dr.select(active_l, mi.Color3f(f) * em_weight, 0.0)
+    weight_l = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
+    result = dr.select(active_l, mi.Color3f(f) * em_weight * weight_l, 0.0)
+
+    bs, bsdf_weight = bsdf.sample(ctx, si, bsdf_sample[0], bsdf_sample[1], active)
+    active_b = active & (bs.pdf > 0)
+    hit = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active_b)
+    active_b &= hit.is_valid()
+    emitter = hit.emitter(scene, active_b)
+    emitted = mi.Color3f(emitter.eval(hit, active_b))
+    light_pdf = scene.pdf_emitter_direction(si, mi.DirectionSample3f(scene, hit, si), active_b)
+    delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    weight_b = dr.select(delta, 1.0, _power_heuristic(bs.pdf, light_pdf))
+    return result + dr.select(active_b, mi.Color3f(bsdf_weight) * emitted * weight_b, 0.0)
+
+
+def _power_heuristic(pdf_a, pdf_b):
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    return dr.select(a2 > 0, a2 / (a2 + b2), 0.0)
 
 
 def sample_hemisphere(strategy, sample):

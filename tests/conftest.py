@@ -12,12 +12,13 @@ import mi_plugins  # noqa: E402,F401  (registers the plugins)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def furnace_rmse(integrator, seeds, resolution):
+def furnace_rmse(integrator, seeds, resolution, geometry="box"):
     """RMS over ``seeds`` of the per-image RMSE of ``integrator`` (a plugin dict) on the
-    furnace box (albedo 0.5, emission 0.5: radiance 1 everywhere), one render per seed."""
+    furnace ``geometry`` (albedo 0.5, emission 0.5: radiance 1 everywhere), one render
+    per seed."""
     from mi_plugins import analytic
     import numpy as np
-    case = analytic.furnace(0.5, 0.5, "box", resolution=resolution)
+    case = analytic.furnace(0.5, 0.5, geometry, resolution=resolution)
     scene = case.scene(integrator)
     exact = case.expected()
     errs = [np.sqrt(np.mean((np.array(mi.render(scene, spp=1, seed=s)) - exact) ** 2)) for s in seeds]

@@ -98,6 +98,14 @@ INTEGRATORS = {
                                  spp=1, runs=8, quick_spp=1, quick_runs=6, requires_meshes=True,
                                  case_params={name: {"burn_in": 32} for name in HIGH_ALBEDO_CASES},
                                  not_applicable={"constant_brdf_roughconductor_box": RAY_BUNDLE_GLOSSY}),
+    # the same with direct light by next-event estimation (first_shot), in the chain
+    # configuration the benchmark uses (64 chains x 32^2 lines)
+    "ray_bundle+first_shot": IntegratorSpec({"type": "ray_bundle", "iterations": 48, "resolution": 32, "chains": 64,
+                                             "first_shot": True},
+                                            spp=1, runs=8, quick_spp=1, quick_runs=6, requires_meshes=True,
+                                            case_params={name: {"burn_in": 32, "iterations": 72}
+                                                         for name in HIGH_ALBEDO_CASES},
+                                            not_applicable={"constant_brdf_roughconductor_box": RAY_BUNDLE_GLOSSY}),
 }
 
 
