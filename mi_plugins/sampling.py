@@ -7,9 +7,9 @@
   it does not change the traced kernel (no recompilation).
 - :func:`sample_hemisphere` / :func:`hemisphere_pdf`: the direction strategies of
   the simulated-emission estimators.
-- :func:`direct_light`: one visibility-tested light sample (next-event estimation)
-  reflected by a BSDF, shared by the final gathering of ``qmc_lighttrace`` and the
-  first shot of ``ray_bundle``.
+- :func:`direct_light`: next-event estimation reflected by a BSDF: one visibility-tested
+  light sample (the final gathering of ``qmc_lighttrace``), or a light and a BSDF
+  sample combined by MIS (the first shot of ``ray_bundle``).
 """
 import drjit as dr
 import mitsuba as mi
@@ -55,9 +55,10 @@ def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None):
     ctx = mi.BSDFContext()
     ds, em_weight = scene.sample_emitter_direction(si, light_sample, True, active)
     active_l = active & (ds.pdf > 0)
-    f, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_l)
     if bsdf_sample is None:
+        f = bsdf.eval(ctx, si, si.to_local(ds.d), active_l)
         return dr.select(active_l, mi.Color3f(f) * em_weight, 0.0)
+    f, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_l)
     weight_l = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
     result = dr.select(active_l, mi.Color3f(f) * em_weight * weight_l, 0.0)
 
