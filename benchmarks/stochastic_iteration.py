@@ -7,7 +7,10 @@ bundles carrying only reflected radiance), same resolution, chains and estimate.
 Issue 4's benchmark: in one run, every integrator renders every scene at a ladder of
 budgets (doubling until a render takes --seconds), and the RMSE of each image against
 the exact image (analytic scenes) or a long `path` reference (the room) is recorded
-against the wall time of the render. Scenes (all closed, all triangle meshes):
+against the wall time of the render. Every budget is rendered --repeats times (default
+2, different seeds) and its RMSE is the root mean square over them: one image's RMSE is
+a noisy statistic, above all for `ray_bundle`, whose pixels all gather from the same
+chains (an error shared by the whole image). Scenes (all closed, all triangle meshes):
 
 - furnace:  the furnace sphere mesh (diffuse albedo 0.5, emission 0.5: L = 1);
 - sierpinski diffuse exact / diffuse simulated / phong n=10 simulated: the three
@@ -102,18 +105,20 @@ def block(center, size, angle_deg, n=2):
 
 class RoomCase(AnalyticCase):
     """Closed room [-1, 1]^3, walls tessellated into ``cells`` x ``cells`` quads (ray_bundle
-    keeps one radiance per triangle), light = the central 2 x 2 cells of the ceiling.
+    keeps one radiance per triangle), light = the central 0.5 x 0.5 square of the ceiling
+    (2 x 2 cells at the default 8 cells; finer cells only refine the tessellation).
     ``expected()`` is the cached long `path` reference (set by :func:`room_reference`)."""
 
     LIGHT_RADIANCE = 50.0
 
     def __init__(self, resolution=32, cells=8):
-        if cells % 2:
-            raise ValueError("--room-cells must be even (the light is the central 2 x 2 cells of the ceiling)")
-        n, c = cells, cells // 2
+        if cells % 8 or cells <= 0:
+            raise ValueError("--room-cells=%d must be a positive multiple of 8 (the light is the central quarter "
+                             "of the ceiling's side, whole cells)" % cells)
+        n = cells
         diffuse = lambda rgb: {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(rgb)}}
         white, red, green = (0.73, 0.73, 0.73), (0.63, 0.065, 0.05), (0.14, 0.45, 0.09)
-        is_light = lambda i, j: c - 1 <= i <= c and c - 1 <= j <= c
+        is_light = lambda i, j: 3 * n // 8 <= i < 5 * n // 8 and 3 * n // 8 <= j < 5 * n // 8
         walls = {  # name: (mesh, reflectance); normals point into the room
             "floor": (quad_grid((-1, -1, -1), (0, 0, 2), (2, 0, 0), n), white),
             "ceiling": (quad_grid((-1, 1, -1), (2, 0, 0), (0, 0, 2), n, keep=lambda i, j: not is_light(i, j)), white),
@@ -228,9 +233,10 @@ def rmse(image, case):
     return math.sqrt(max(err2 - noise ** 2, 0.25 * err2))
 
 
-def run_scene(case, meths, seconds, max_points, min_points):
+def run_scene(case, meths, seconds, max_points, min_points, repeats=1):
     """Every integrator renders at its doubling ladder until one of its renders takes
-    `seconds` (and at least `min_points` budgets). The ladders are interleaved (rung k
+    `seconds` (and at least `min_points` budgets); every budget is rendered `repeats`
+    times with different seeds (RMSE: root mean square over them; seconds: mean). The ladders are interleaved (rung k
     of every integrator, then rung k+1) so that load from other processes affects all
     integrators alike. Returns
     {integrator: [dict(budget, seconds, compile, rmse, mean), ...]}."""
@@ -250,9 +256,11 @@ def run_scene(case, meths, seconds, max_points, min_points):
             cfg, spp = m.config(m.ladder[k])
             if cfg != scenes[name][0]:
                 scenes[name] = (cfg, case.scene(cfg))
-            image, sec, comp = timed_render(scenes[name][1], spp, seed=k + 1)
-            curves[name].append(dict(budget=m.ladder[k], seconds=sec, compile=comp, rmse=rmse(image, case),
-                                     mean=float(image.mean())))
+            renders = [timed_render(scenes[name][1], spp, seed=(k + 1) * 1000 + r) for r in range(repeats)]
+            sec = float(np.mean([r[1] for r in renders]))
+            curves[name].append(dict(budget=m.ladder[k], seconds=sec, compile=sum(r[2] for r in renders),
+                                     rmse=math.sqrt(np.mean([rmse(r[0], case) ** 2 for r in renders])),
+                                     mean=float(np.mean([r[0].mean() for r in renders]))))
             if sec >= seconds and k + 1 >= min_points:
                 active.remove(name)
         if not active:
@@ -551,6 +559,8 @@ def main():
     p.add_argument("--ref-spp", type=int, default=None, help="room reference spp (default 16384, quick 4096)")
     p.add_argument("--max-points", type=int, default=14, help="most budgets per curve")
     p.add_argument("--min-points", type=int, default=None, help="fewest budgets per curve (default 3, quick 2)")
+    p.add_argument("--repeats", type=int, default=2,
+                   help="renders (seeds) per budget; their RMS error is the budget's RMSE (default 2)")
     p.add_argument("--out", default=os.path.join(HERE, "stochastic_iteration.png"))
     args = p.parse_args()
     seconds = args.seconds or (0.3 if args.quick else 2.5)
@@ -569,14 +579,15 @@ def main():
     meths = {k: v for k, v in methods(args).items() if k in inames}
     scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp)
     print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s (ray_bundle_fs: the same with first_shot=true); ladders "
-          "double until a render takes %.2f s; %d x %d px, llvm_ad_rgb, %d threads\n"
+          "double until a render takes %.2f s, %d render(s) per budget; %d x %d px, llvm_ad_rgb, %d threads\n"
           % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, args.bundle_estimate, seconds,
-             args.resolution,
+             args.repeats, args.resolution,
              args.resolution, dr.thread_count()))
     results, warns, notes = {}, [], []
     for sname, case in scenes.items():
         t0 = time.perf_counter()
-        curves = run_scene(case, meths, seconds, args.max_points, args.min_points or (2 if args.quick else 3))
+        curves = run_scene(case, meths, seconds, args.max_points, args.min_points or (2 if args.quick else 3),
+                           args.repeats)
         t1 = time.perf_counter()
         rays, how = {}, {}
         for mname, m in meths.items():
