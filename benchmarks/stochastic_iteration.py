@@ -233,12 +233,12 @@ def rmse(image, case):
     return math.sqrt(max(err2 - noise ** 2, 0.25 * err2))
 
 
-def run_scene(case, meths, seconds, max_points, min_points, repeats=1):
+def run_scene(case, meths, seconds, max_points, min_points, repeats):
     """Every integrator renders at its doubling ladder until one of its renders takes
     `seconds` (and at least `min_points` budgets); every budget is rendered `repeats`
-    times with different seeds (RMSE: root mean square over them; seconds: mean). The ladders are interleaved (rung k
-    of every integrator, then rung k+1) so that load from other processes affects all
-    integrators alike. Returns
+    times with different seeds (RMSE: root mean square over them; seconds: mean). The
+    ladders are interleaved (rung k of every integrator, then rung k+1) so that load
+    from other processes affects all integrators alike. Returns
     {integrator: [dict(budget, seconds, compile, rmse, mean), ...]}."""
     scenes, curves = {}, {}
     for name, m in meths.items():   # warm-up: kernel compilation

@@ -155,8 +155,8 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
            dealt to the chains in a fresh random order. Each chain's directions stay
            independent and uniform (unbiased, as the paper requires) while the image,
            which averages the chains, has less noise (RMSE halved on the furnace
-           sphere mesh with 64 chains). false: independent directions in every chain. No effect with one
-           chain; only with 'independent'
+           sphere mesh with 64 chains). false: independent directions in every
+           chain. No effect with one chain; only with 'independent'
        * - ``hide_emitters``, bool, false: do not show directly visible emitters
 
     ``mi.render(scene, spp=k)`` runs ``iterations * k`` global iterations of every chain;
