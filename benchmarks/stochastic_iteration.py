@@ -1,8 +1,10 @@
 """Error versus wall time of `ray_bundle`, `stochastic_ray`, Mitsuba `path` and `ptracer`.
 
-`ray_bundle` runs twice: as the paper's algorithm (``ray_bundle``) and with
+`ray_bundle` runs three times: as the paper's algorithm (``ray_bundle``), with
 ``first_shot=true`` (``ray_bundle_fs``: direct light by a light sample with MIS, the
-bundles carrying only reflected radiance), same resolution, chains and estimate.
+bundles carrying only reflected radiance), and with ``first_shot=true,
+average_diffuse=true`` (``ray_bundle_avg``: final gathering from the diffuse patches'
+averages over chains and iterations), same resolution, chains and estimate.
 
 Issue 4's benchmark: in one run, every integrator renders every scene at a ladder of
 budgets (doubling until a render takes --seconds), and the RMSE of each image against
@@ -16,8 +18,9 @@ chains (an error shared by the whole image). Scenes (all closed, all triangle me
 - sierpinski diffuse exact / diffuse simulated / phong n=10 simulated: the three
   constant-radiance scenes of the analytic-scenes paper's figure 4 (L = 1);
 - room:     a closed Cornell-like room (white floor, back, front and ceiling, red and
-  green side walls, a small emissive square in the ceiling, two blocks), camera
-  inside; reference: a long `path` render cached in benchmarks/.cache/.
+  green side walls, a small emissive square in the ceiling, two blocks; a conforming
+  mesh: no floor triangles under the blocks), camera inside; reference: a long `path`
+  render (131072 spp) cached in benchmarks/.cache/.
 
 Printed per scene: RMSE at the largest budget, mean image value against the exact
 mean, log-log slope (-0.5 for an unbiased Monte Carlo method), RMSE ratio to `path`
@@ -31,8 +34,12 @@ Rays per second: the better of a curve's two largest renders.
 Timing: time.perf_counter around `mi.render` + conversion to numpy, after one
 warm-up render per integrator; the LLVM compile time of kernels that miss Dr.Jit's
 cache during a timed render (read from Dr.Jit's kernel history) is subtracted and
-reported ("compile"). The ladders of a scene are interleaved (rung k of every
-integrator, then rung k + 1) so that load from other processes hits all alike.
+reported ("compile"). Every integrator's ladder (with its warm-up and ray count) runs in
+a fresh process of its own: in one process, a Dr.Jit integrator renders 20-25 % slower
+after Mitsuba's C++ `path` has rendered there (measured on the room: 1.15 s -> 1.40 s
+per render, persistent; up to 2.5x after several C++ integrators), which would charge
+the order of the ladders to the Python integrators. ``--no-isolate`` runs everything in
+one process with the ladders interleaved (rung k of every integrator, then rung k + 1).
 Writes a log-log plot (one panel per scene, plus the paper's figure 4 as RMSE of
 `ray_bundle` versus iterations on the three Sierpinski scenes).
 
@@ -41,8 +48,11 @@ Writes a log-log plot (one panel per scene, plus the paper's figure 4 as RMSE of
 """
 import argparse
 import hashlib
+import json
 import math
 import os
+import subprocess
+import sys
 import time
 import warnings
 
@@ -59,8 +69,9 @@ from mi_plugins.analytic import constant_radiance as cr  # noqa: E402
 from mi_plugins.analytic.case import AnalyticCase  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+WORKER_MARK = "@@worker-result "
 CACHE = os.path.join(HERE, ".cache")
-INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_fs")
+INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_fs", "ray_bundle_avg")
 SCENES = ("furnace", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated", "sierpinski_phong_simulated", "room")
 DIFFUSE_SCENES = ("furnace", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated", "room")
 SIERPINSKI = SCENES[1:4]
@@ -107,11 +118,16 @@ class RoomCase(AnalyticCase):
     """Closed room [-1, 1]^3, walls tessellated into ``cells`` x ``cells`` quads (ray_bundle
     keeps one radiance per triangle), light = the central 0.5 x 0.5 square of the ceiling
     (2 x 2 cells at the default 8 cells; finer cells only refine the tessellation).
+    ``conforming`` (default): two upright blocks on whole floor cells, and no floor
+    triangles under them, as a radiosity mesh should be (a patch partly hidden under a
+    block spreads what its visible part receives over its whole area: ray_bundle then
+    loses 0.6 % of the room's energy); false: the older room, blocks rotated by
+    +-17 degrees standing on whole floor quads.
     ``expected()`` is the cached long `path` reference (set by :func:`room_reference`)."""
 
     LIGHT_RADIANCE = 50.0
 
-    def __init__(self, resolution=32, cells=8):
+    def __init__(self, resolution=32, cells=8, conforming=True):
         if cells % 8 or cells <= 0:
             raise ValueError("--room-cells=%d must be a positive multiple of 8 (the light is the central quarter "
                              "of the ceiling's side, whole cells)" % cells)
@@ -119,25 +135,30 @@ class RoomCase(AnalyticCase):
         diffuse = lambda rgb: {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(rgb)}}
         white, red, green = (0.73, 0.73, 0.73), (0.63, 0.065, 0.05), (0.14, 0.45, 0.09)
         is_light = lambda i, j: 3 * n // 8 <= i < 5 * n // 8 and 3 * n // 8 <= j < 5 * n // 8
+        q = n // 8
+        under = lambda i, j: (q <= i < 3 * q and q <= j < 3 * q) or (3 * q <= i < 5 * q and 5 * q <= j < 7 * q)
         walls = {  # name: (mesh, reflectance); normals point into the room
-            "floor": (quad_grid((-1, -1, -1), (0, 0, 2), (2, 0, 0), n), white),
+            "floor": (quad_grid((-1, -1, -1), (0, 0, 2), (2, 0, 0), n,
+                                keep=(lambda i, j: not under(i, j)) if conforming else None), white),
             "ceiling": (quad_grid((-1, 1, -1), (2, 0, 0), (0, 0, 2), n, keep=lambda i, j: not is_light(i, j)), white),
             "back": (quad_grid((-1, -1, -1), (2, 0, 0), (0, 2, 0), n), white),
             "front": (quad_grid((-1, -1, 1), (0, 2, 0), (2, 0, 0), n), white),
             "left": (quad_grid((-1, -1, -1), (0, 2, 0), (0, 0, 2), n), red),
             "right": (quad_grid((1, -1, -1), (0, 0, 2), (0, 2, 0), n), green),
-            "tall_block": (block((-0.4, -0.4, -0.45), (0.5, 1.2, 0.5), 17.0), white),
-            "short_block": (block((0.4, -0.7, -0.05), (0.5, 0.6, 0.5), -17.0), white),
+            "tall_block": (block((-0.5, -0.4, -0.5), (0.5, 1.2, 0.5), 0.0) if conforming else
+                           block((-0.4, -0.4, -0.45), (0.5, 1.2, 0.5), 17.0), white),
+            "short_block": (block((0.5, -0.7, 0.0), (0.5, 0.6, 0.5), 0.0) if conforming else
+                            block((0.4, -0.7, -0.05), (0.5, 0.6, 0.5), -17.0), white),
         }
         surfaces = {}
         for name, (mesh, rgb) in walls.items():
-            surfaces[name] = dict(geo.mesh_shape(mesh, "room%d_%s" % (n, name)), bsdf=diffuse(rgb))
+            surfaces[name] = dict(geo.mesh_shape(mesh, "room%d%s_%s" % (n, "c" if conforming else "", name)), bsdf=diffuse(rgb))
         light = quad_grid((-1, 1, -1), (2, 0, 0), (0, 0, 2), n, keep=is_light)
         surfaces["light"] = dict(geo.mesh_shape(light, "room%d_light" % n), bsdf=diffuse(white),
                                  emitter={"type": "area", "radiance": {"type": "rgb", "value": [self.LIGHT_RADIANCE] * 3}})
         camera = ([0.0, 0.0, 0.95], [0.0, 0.0, -1.0], [0, 1, 0])
         super().__init__("room", surfaces, camera, resolution=resolution, fov=65.0,
-                         params=dict(cells=cells), description="closed Cornell-like room, reference: long path render")
+                         params=dict(cells=cells, conforming=conforming), description="closed Cornell-like room, reference: long path render")
         self.reference = None
         self.reference_noise = 0.0   # RMS noise of the reference image (per pixel channel)
 
@@ -171,13 +192,13 @@ def room_reference(case, spp, chunk=1024, seed=10_000):
 
 
 # ---------------------------------------------------------------------------- scenes
-def make_scenes(names, resolution, room_cells, ref_spp):
+def make_scenes(names, resolution, room_cells, ref_spp, conforming=True):
     scenes = {}
     for name in names:
         if name == "furnace":
             scenes[name] = analytic.furnace(0.5, 0.5, "sphere_mesh", resolution=resolution)
         elif name == "room":
-            case = RoomCase(resolution, room_cells)
+            case = RoomCase(resolution, room_cells, conforming)
             case.reference, case.reference_noise = room_reference(case, ref_spp)
             scenes[name] = case
         else:
@@ -197,15 +218,17 @@ def methods(args):
     doubling = [2 ** k for k in range(20)]
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
-    rb = lambda n, fs=False: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
-                                   resolution=args.bundle_resolution, chains=args.bundle_chains,
-                                   estimate=args.bundle_estimate, first_shot=fs), 1)
+    rb = lambda n, fs=False, avg=False: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
+                                              resolution=args.bundle_resolution, chains=args.bundle_chains,
+                                              estimate=args.bundle_estimate, first_shot=fs, average_diffuse=avg), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),
         "stochastic_ray": Method("stochastic_ray", doubling, lambda b: (dict(sr), b), "spp"),
         "ray_bundle": Method("ray_bundle", rb_ladder, rb, "iterations"),
         "ray_bundle_fs": Method("ray_bundle_fs", rb_ladder, lambda n: rb(n, True), "iterations"),
+        "ray_bundle_avg": Method("ray_bundle_avg", rb_ladder,
+                                 lambda n: (dict(rb(n, True, True)[0], gather_nee=args.gather_nee), 1), "iterations"),
     }
 
 
@@ -460,7 +483,8 @@ def count_rays(case, method, budgets):
         integ.progress_callback = None
     marks = [0] + marks
     burn = (marks[integ.burn_in] - marks[0]) / max(integ.burn_in, 1)
-    averaged = (marks[total] - marks[integ.burn_in]) / (total - integ.burn_in)
+    # (with average_diffuse the final gathering's passes, one per averaged iteration, come last)
+    averaged = (marks[-1] - marks[integ.burn_in]) / (total - integ.burn_in)
     res = integ.resolution
     lines = math.pi / 4 * res * res * integ.chains   # lines inside the bounding disks (expected number)
     counts = {b: int(round(method.config(b)[0]["burn_in"] * burn + (b - integ.burn_in) * averaged)) for b in budgets}
@@ -509,7 +533,8 @@ def plot(results, scenes, args):
     cols = 3
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(5.0 * cols, 4.0 * rows), squeeze=False)
-    colors = {"path": "C0", "ptracer": "C1", "stochastic_ray": "C2", "ray_bundle": "C3", "ray_bundle_fs": "C4"}
+    colors = {"path": "C0", "ptracer": "C1", "stochastic_ray": "C2", "ray_bundle": "C3", "ray_bundle_fs": "C4",
+              "ray_bundle_avg": "C5"}
     for ax, panel in zip(axes.flat, panels):
         if panel == "figure4":
             for s, style in zip(SIERPINSKI, ("-o", "--s", ":^")):
@@ -552,19 +577,29 @@ def main():
     p.add_argument("--integrators", default=",".join(INTEGRATORS))
     p.add_argument("--burn-in", type=int, default=8, help="burn_in of stochastic_ray and ray_bundle")
     p.add_argument("--sr-iterations", type=int, default=64, help="stochastic_ray steps per chain")
-    p.add_argument("--bundle-resolution", type=int, default=64, help="ray_bundle lines per side")
+    p.add_argument("--bundle-resolution", type=int, default=32, help="ray_bundle lines per side")
     p.add_argument("--bundle-chains", type=int, default=64, help="ray_bundle chains run in lockstep")
     p.add_argument("--bundle-estimate", choices=("gather", "patch"), default="gather", help="ray_bundle image estimate")
     p.add_argument("--room-cells", type=int, default=8, help="quads per wall side in the room")
-    p.add_argument("--ref-spp", type=int, default=None, help="room reference spp (default 16384, quick 4096)")
+    p.add_argument("--room-mesh", choices=("conforming", "overlapping"), default="conforming",
+                   help="conforming: the floor has no triangles under the blocks (default); overlapping: the "
+                        "older room, rotated blocks standing on whole floor quads")
+    p.add_argument("--ref-spp", type=int, default=None, help="room reference spp (default 131072, quick 4096)")
     p.add_argument("--max-points", type=int, default=14, help="most budgets per curve")
     p.add_argument("--min-points", type=int, default=None, help="fewest budgets per curve (default 3, quick 2)")
     p.add_argument("--repeats", type=int, default=2,
                    help="renders (seeds) per budget; their RMS error is the budget's RMSE (default 2)")
     p.add_argument("--out", default=os.path.join(HERE, "stochastic_iteration.png"))
+    p.add_argument("--no-isolate", dest="isolate", action="store_false",
+                   help="run all integrators in this process, ladders interleaved (default: one fresh process per "
+                        "integrator and scene; a Dr.Jit integrator renders 20-25 %% slower in a process where "
+                        "Mitsuba's C++ path has rendered, measured 1.15 s -> 1.40 s, and more after several)")
+    p.add_argument("--no-gather-nee", dest="gather_nee", action="store_false",
+                   help="ray_bundle_avg with gather_nee=false (direct light in the patch average)")
+    p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
     seconds = args.seconds or (0.3 if args.quick else 2.5)
-    ref_spp = args.ref_spp or (4096 if args.quick else 16384)
+    ref_spp = args.ref_spp or (4096 if args.quick else 131072)
     names = [s for s in args.scenes.split(",") if s]
     inames = [s for s in args.integrators.split(",") if s]
     for s in names:
@@ -577,8 +612,28 @@ def main():
     t_start = time.perf_counter()
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     meths = {k: v for k, v in methods(args).items() if k in inames}
-    scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp)
-    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s (ray_bundle_fs: the same with first_shot=true); ladders "
+    if args.worker:
+        names = [args.worker.split(":")[0]]
+    scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp, args.room_mesh == "conforming")
+    if args.worker:
+        sname, mname = args.worker.split(":")
+        curves = run_scene(scenes[sname], {mname: meths[mname]}, seconds, args.max_points,
+                           args.min_points or (2 if args.quick else 3), args.repeats)
+        rays, how = count_rays(scenes[sname], meths[mname], [pt["budget"] for pt in curves[mname]])
+        print(WORKER_MARK + json.dumps(dict(curves=curves[mname], rays=rays, how=how)))
+        return
+
+    def run_isolated(sname, mname):
+        """One integrator's ladder and ray count on one scene, in a fresh process."""
+        argv = [a for a in sys.argv[1:]]
+        out = subprocess.run([sys.executable, os.path.abspath(__file__), *argv, "--worker", "%s:%s" % (sname, mname)],
+                             capture_output=True, text=True)
+        lines = [l for l in out.stdout.splitlines() if l.startswith(WORKER_MARK)]
+        if out.returncode != 0 or not lines:
+            raise RuntimeError("worker %s:%s failed:\n%s\n%s" % (sname, mname, out.stdout[-2000:], out.stderr[-4000:]))
+        data = json.loads(lines[-1][len(WORKER_MARK):])
+        return data["curves"], {int(b): n for b, n in data["rays"].items()}, data["how"]
+    print("stochastic_ray: iterations %d, burn_in %d; ray_bundle: burn_in %d, resolution %d, chains %d, estimate %s (ray_bundle_fs: the same with first_shot=true; ray_bundle_avg: first_shot=true, average_diffuse=true); ladders "
           "double until a render takes %.2f s, %d render(s) per budget; %d x %d px, llvm_ad_rgb, %d threads\n"
           % (args.sr_iterations, args.burn_in, args.burn_in, args.bundle_resolution, args.bundle_chains, args.bundle_estimate, seconds,
              args.repeats, args.resolution,
@@ -586,15 +641,21 @@ def main():
     results, warns, notes = {}, [], []
     for sname, case in scenes.items():
         t0 = time.perf_counter()
-        curves = run_scene(case, meths, seconds, args.max_points, args.min_points or (2 if args.quick else 3),
-                           args.repeats)
-        t1 = time.perf_counter()
-        rays, how = {}, {}
-        for mname, m in meths.items():
-            rays[mname], how[mname] = count_rays(case, m, [pt["budget"] for pt in curves[mname]])
+        if args.isolate:
+            curves, rays, how = {}, {}, {}
+            for mname in meths:
+                curves[mname], rays[mname], how[mname] = run_isolated(sname, mname)
+        else:
+            curves = run_scene(case, meths, seconds, args.max_points, args.min_points or (2 if args.quick else 3),
+                               args.repeats)
+            rays, how = {}, {}
+            for mname, m in meths.items():
+                rays[mname], how[mname] = count_rays(case, m, [pt["budget"] for pt in curves[mname]])
+        for mname in meths:
             warns += monotone_warnings(sname, mname, curves[mname])
-        print("  [%s: %d renders in %.1f s, ray counting %.1f s]" % (sname, sum(len(c) for c in curves.values()),
-                                                                     t1 - t0, time.perf_counter() - t1), flush=True)
+        print("  [%s: %d renders and ray counting in %.1f s%s]"
+              % (sname, sum(len(c) for c in curves.values()), time.perf_counter() - t0,
+                 ", one process per integrator" if args.isolate else ""), flush=True)
         t_star = min(c[-1]["seconds"] for c in curves.values())
         results[sname] = dict(curves=curves, rays=rays, how=how, t_star=t_star)
         report_scene(sname, case, results[sname], meths, notes)
@@ -648,7 +709,7 @@ def summary(results, meths):
         curves = res["curves"]
         base = interp_loglog(curves["path"], res["t_star"])[0]
         base_rate = rays_per_second(curves["path"], res["rays"]["path"])
-        for mname in ("ray_bundle", "ray_bundle_fs", "stochastic_ray"):
+        for mname in ("ray_bundle", "ray_bundle_fs", "ray_bundle_avg", "stochastic_ray"):
             if mname not in curves:
                 continue
             pts = curves[mname]

@@ -90,6 +90,59 @@ def _direct_light_mis(scene, si, bsdf, rng, active):
     return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample)
 
 
+class DiffuseAverage:
+    """Per-triangle averages over all chains and averaged iterations for the patches
+    whose BSDF is purely diffuse (``average_diffuse``): their outgoing radiance does not
+    depend on the direction, so every chain's value in every iteration estimates the
+    same number. With the 'gather' estimate the average is of the radiance the patches
+    reflect from the bundles, R = weight * f * sum_j A(i,j,+-d) L[j] / A_i; the gathered
+    point adds its own source term evaluated where the gather ray lands (its emission,
+    or with ``first_shot`` its direct light by next-event estimation; with
+    ``gather_nee=false`` the direct light is averaged too). With 'patch' it
+    is of the incoming radiance weight * sum_j A(i,j,+-d) L[j] / A_i. Only front sides
+    are stored (the bundles exchange radiance between front sides)."""
+
+    def __init__(self, table, estimate):
+        flags = np.array([shape.bsdf().flags() if shape.bsdf() is not None else 0 for shape in table.meshes],
+                         dtype=np.int64)
+        diffuse_mesh = (flags & int(mi.BSDFFlags.All)) == int(mi.BSDFFlags.DiffuseReflection)
+        diffuse = diffuse_mesh[table.shape_index_np]
+        self.covers_all = bool(np.all(diffuse))
+        self.estimate = estimate
+        self.mask = mi.Bool(diffuse)
+        self.table = table
+        self.sum = dr.zeros(mi.Color3f, table.count)
+        self.count = dr.zeros(mi.Float, table.count)
+
+    def state(self):
+        return self.sum, self.count
+
+    def is_averaged(self, tri, active):
+        return dr.gather(mi.Bool, self.mask, tri, active)
+
+    def mean(self, tri, active):
+        return (dr.gather(mi.Color3f, self.sum, tri, active)
+                / dr.maximum(dr.gather(mi.Float, self.count, tri, active), 1.0))
+
+    def add(self, layout, dirs, radiance, incoming, weight):
+        """Add one iteration of every chain: the stored radiance (+d, -d or None) of the
+        side each patch shows (the front side; one of +-d faces it), or the incoming."""
+        tri, chain = layout.slot_triangle_chain()
+        if self.estimate == "patch":
+            area = dr.maximum(dr.gather(mi.Float, self.table.area, tri), 1e-30)
+            value = incoming[0] if incoming[1] is None else incoming[0] + incoming[1]
+            value, count = value * (weight / area), mi.Float(1.0)
+        else:
+            d = dr.gather(mi.Vector3f, dirs, chain)
+            cos_d = dr.dot(dr.gather(mi.Normal3f, self.table.normal, tri), d)
+            if radiance[1] is None:  # only +d: the patch shows its front to half of the directions
+                value, count = dr.select(cos_d > 0, radiance[0], 0.0), dr.select(cos_d > 0, 1.0, 0.0)
+            else:
+                value, count = dr.select(cos_d > 0, radiance[0], radiance[1]), dr.select(cos_d != 0, 1.0, 0.0)
+        dr.scatter_add(self.sum, value, tri, mode=SPLAT_MODE)
+        dr.scatter_add(self.count, count, tri, mode=SPLAT_MODE)
+
+
 class ChainLayout:
     """Lane bookkeeping for ``chains`` independent chains run in lockstep: patch ``t``
     of chain ``b`` is slot ``b * count + t`` of the radiance arrays."""
@@ -157,15 +210,35 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
            which averages the chains, has less noise (RMSE halved on the furnace
            sphere mesh with 64 chains). false: independent directions in every
            chain. No effect with one chain; only with 'independent'
+       * - ``average_diffuse``, bool, false: final gathering from averaged diffuse
+           patches. A patch with a purely diffuse BSDF reflects the same radiance in
+           every direction, so all chains' values in all averaged iterations estimate
+           the same number: their average (O(triangles) memory) replaces the current
+           chain's value in the image. The image is then made after the iterations, one
+           pass per averaged iteration (same camera samples and directions; with
+           ``first_shot`` the gathered point's direct light by next-event estimation).
+           Unbiased like the default for the patch-averaged problem; far less noise
+           (furnace sphere mesh: 6x lower RMSE at equal time than first shot alone). Non-diffuse patches
+           keep the paper's per-chain estimate. false is the paper's algorithm
+       * - ``gather_nee``, bool, true: with ``first_shot`` and ``average_diffuse``, the
+           direct light of each gathered point by next-event estimation (exact where it
+           varies within a patch, e.g. near lights). false: the direct light is part of
+           the patch average (no extra rays; exact where the direct light is uniform
+           over each patch, as in the furnace and constant-radiance scenes)
        * - ``hide_emitters``, bool, false: do not show directly visible emitters
 
     ``mi.render(scene, spp=k)`` runs ``iterations * k`` global iterations of every chain;
     every averaged iteration traces one fresh camera sample per pixel and chain (work
-    linear in ``k`` and in ``chains``).
+    linear in ``k`` and in ``chains``). With ``average_diffuse`` those camera samples are
+    traced after the iterations (the final gathering), and again during the iterations
+    when the scene also has non-diffuse patches.
 
     Progress: ``integrator.progress_callback = f``; ``f(done, total)`` after every
     iteration, return ``False`` to stop early; Ctrl-C also stops early; the finished
-    iterations make the image.
+    iterations make the image. With ``average_diffuse`` the steps also count the final
+    gathering's passes (``integrator.iteration_count(spp)``); stopping during the
+    iterations still runs one final-gathering pass per finished averaged iteration
+    (stop again to cut it short: the finished passes, at least one, make the image).
 
     With ``first_shot`` the stored radiance is the reflected part
     :math:`L_r = L - L^e` and the iteration is
@@ -200,13 +273,17 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                              "the other sequences give every chain its own sequence"
                              % self.direction_sequence)
         self.hide_emitters = bool_param(props, "hide_emitters", False)
+        self.average_diffuse = bool_param(props, "average_diffuse", False)
+        self.gather_nee = bool_param(props, "gather_nee", True)
         self.progress_callback = None
         self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
 
     def iteration_count(self, spp):
-        """Global iterations of a render with ``spp``: ``iterations * spp`` (each advances
-        every chain)."""
-        return self.iterations * int(spp)
+        """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
+        advances every chain), plus with ``average_diffuse`` the final gathering's passes
+        (one per averaged iteration)."""
+        total = self.iterations * int(spp)
+        return total + (total - self.burn_in if self.average_diffuse else 0)
 
     # ------------------------------------------------------------------ patches
     def _patch_interaction(self, layout, rng, out_dirs):
@@ -293,9 +370,13 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         chain = dr.arange(mi.UInt32, paths.count) % layout.chains
         return chain, dr.gather(mi.Vector3f, dirs, chain)
 
-    def _gather(self, scene, layout, paths, dirs, L_fwd, L_bwd, weight, rng):
-        """Per camera sample: reflect the stored radiance arriving at the visible point
-        along +d (from the patch seen in direction -d) and along -d toward the eye."""
+    def _gather(self, scene, layout, paths, dirs, L, weight, rng, part="all", average=None):
+        """Per camera sample: reflect the radiance arriving at the visible point along +d
+        (from the patch seen in direction -d) and along -d toward the eye. ``L``: the
+        stored radiance (+d, -d or None). ``part``: 'all' (every source from the
+        chains' stored radiance, plus the direct light), 'current' (only sources that
+        are not averaged) or 'average' (only averaged diffuse sources, plus the direct
+        light); see :class:`DiffuseAverage`."""
         table = layout.table
         chain, d = self._camera_chains(layout, paths, dirs)
         si = scene.ray_intersect(paths.ray, paths.valid)
@@ -303,9 +384,8 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         bsdf = si.bsdf(paths.ray)
         result = mi.Color3f(0.0)
         ctx = mi.BSDFContext()
-        for sign, L in ((1.0, L_fwd), (-1.0, L_bwd)):
-            if L is None:
-                continue
+        for k, sign in enumerate((1.0, -1.0) if self.bidirectional else (1.0,)):
+            L_dir = L[k] if L is not None else None     # not needed for the averaged part
             travel = d * sign                      # radiance travels along `travel`
             wo = si.to_local(-travel)              # toward its source
             ok = valid & (mi.Frame3f.cos_theta(wo) > 0)
@@ -314,28 +394,75 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
             tri = table.triangle_index(src.shape, src.prim_index)
             n_src = dr.gather(mi.Normal3f, table.normal, tri, ok)
             ok &= dr.dot(n_src, travel) > 0
-            radiance = dr.gather(mi.Color3f, L, layout.slot_of(tri, chain), ok)
+            radiance = self._source_radiance(scene, layout, src, tri, chain, L_dir, part, average, ok, rng)
             f_cos = mi.Color3f(bsdf.eval(ctx, si, wo, ok))
             result += dr.select(ok, f_cos * radiance, 0.0)
-        return paths.throughput * (result * weight + self._direct_at(scene, si, bsdf, valid, rng))
+        direct = self._direct_at(scene, si, bsdf, valid, rng) if part != "current" else mi.Color3f(0.0)
+        return paths.throughput * (result * weight + direct)
 
-    def _patch_estimate(self, scene, layout, paths, dirs, in_fwd, in_bwd, weight, rng):
+    def _source_radiance(self, scene, layout, src, tri, chain, L_dir, part, average, active, rng):
+        """Radiance of the gathered source point ``src`` (patch ``tri``) toward the
+        camera sample: the chain's stored value, or for averaged diffuse patches the
+        average over chains and iterations (plus the emission at ``src`` itself when
+        the average holds only reflected radiance)."""
+        if part == "all":
+            return dr.gather(mi.Color3f, L_dir, layout.slot_of(tri, chain), active)
+        diffuse = average.is_averaged(tri, active)
+        if part == "current":
+            keep = active & ~diffuse
+            return dr.select(keep, dr.gather(mi.Color3f, L_dir, layout.slot_of(tri, chain), keep), 0.0)
+        use = active & diffuse
+        radiance = average.mean(tri, use)
+        if not self.first_shot:
+            radiance += mi.Color3f(src.emitter(scene, use).eval(src, use))
+        elif self.gather_nee:   # first shot: the direct light at the gathered point itself, by NEE
+            radiance += _direct_light_mis(scene, src, src.bsdf(), rng, use)
+        return dr.select(use, radiance, 0.0)
+
+    def _patch_estimate(self, scene, layout, paths, dirs, incoming, weight, rng, part="all", average=None):
         """Per camera sample: reflect the patch-averaged incoming radiance of the visible
-        patch (sum_j A(i,j,+-d) L[j] / A_i) toward the eye at the visible point."""
+        patch (sum_j A(i,j,+-d) L[j] / A_i) toward the eye at the visible point.
+        ``part`` as in :meth:`_gather`; averaged diffuse patches use the average of
+        that incoming radiance over chains and iterations."""
         table = layout.table
         chain, d = self._camera_chains(layout, paths, dirs)
         si = scene.ray_intersect(paths.ray, paths.valid)
         valid = paths.valid & si.is_valid()
+        bsdf = si.bsdf(paths.ray)
         tri = table.triangle_index(si.shape, si.prim_index)
-        area = dr.gather(mi.Float, table.area, tri, valid)
-        slot = layout.slot_of(tri, chain)
         result = mi.Color3f(0.0)
-        for sign, incoming in ((1.0, in_fwd), (-1.0, in_bwd)):
-            if incoming is None:
-                continue
-            inc = dr.gather(mi.Color3f, incoming, slot, valid) / dr.maximum(area, 1e-30)
-            result += dr.select(valid, self._reflect(si, inc, -d * sign), 0.0)
-        return paths.throughput * (result * weight + self._direct_at(scene, si, si.bsdf(paths.ray), valid, rng))
+        if part == "average":
+            use = valid & average.is_averaged(tri, valid)
+            # a diffuse BSDF's value does not depend on the directions: take it at the normal
+            f = mi.Color3f(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0, 0, 1), use))
+            result = dr.select(use, f * average.mean(tri, use), 0.0)
+        else:
+            area = dr.gather(mi.Float, table.area, tri, valid)
+            slot = layout.slot_of(tri, chain)
+            for k, sign in enumerate((1.0, -1.0) if self.bidirectional else (1.0,)):
+                inc = dr.gather(mi.Color3f, incoming[k], slot, valid) / dr.maximum(area, 1e-30)
+                result += dr.select(valid, self._reflect(si, inc, -d * sign), 0.0) * weight
+            if part == "current":
+                result = dr.select(average.is_averaged(tri, valid), 0.0, result)
+        direct = self._direct_at(scene, si, bsdf, valid, rng) if part != "current" else mi.Color3f(0.0)
+        return paths.throughput * (result + direct)
+
+    def _image_estimate(self, scene, layout, sensor, m, seed, dirs, L, incoming, weight, part, average):
+        """One camera sample per pixel and chain (iteration ``m``'s camera seed): the
+        flat (H*W*3) image of this estimate, divided by the chains; the directly seen
+        emission is included unless ``part`` is 'current'."""
+        chains = layout.chains
+        paths = camera_paths(scene, sensor, chains, seed * 1000081 + m, -1, self.hide_emitters)
+        rng_cam = mi.PCG32(paths.count, initstate=dr.opaque(mi.UInt64, seed * 1000099 + m * 31 + 5),
+                           initseq=mi.UInt64(dr.arange(mi.UInt32, paths.count)))
+        if self.estimate == "gather":
+            est = self._gather(scene, layout, paths, dirs, L, weight, rng_cam, part, average)
+        else:
+            est = self._patch_estimate(scene, layout, paths, dirs, incoming, weight, rng_cam, part, average)
+        image = paths.emission_image if part != "current" else dr.zeros(mi.Float, dr.width(paths.emission_image))
+        for c in range(3):
+            dr.scatter_add(image, est[c] / chains, paths.pixel * 3 + c, mode=SPLAT_MODE)
+        return image
 
     # ------------------------------------------------------------------ render
     def _warn_delta(self, scene):
@@ -350,31 +477,52 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
 
     def _initial_radiance(self, scene, layout, rng_patch, dirs):
         """Source radiance of every patch along +d (and -d when bidirectional): L_0 = Le
-        (with ``first_shot``: the direct light T Le)."""
-        si, _, _ = self._patch_interaction(layout, rng_patch, dirs)
-        L_fwd = self._source(scene, si, rng_patch)
-        L_bwd = None
-        if self.bidirectional:
-            si_b, _, _ = self._patch_interaction(layout, rng_patch, -dirs)
-            L_bwd = self._source(scene, si_b, rng_patch)
-        return L_fwd, L_bwd
+        (with ``first_shot``: the direct light T Le). Returns (L, R): lists (+d, -d or
+        None) of the radiance and of its part carried by the bundles (zero here)."""
+        L = [None, None]
+        for k, out_dirs in enumerate((dirs, -dirs) if self.bidirectional else (dirs,)):
+            si, _, _ = self._patch_interaction(layout, rng_patch, out_dirs)
+            L[k] = self._source(scene, si, rng_patch)
+        return L, [None if x is None else dr.zeros(mi.Color3f, layout.slots) for x in L]
 
-    def _reflect_into(self, scene, layout, rng_patch, dirs, new_dirs, in_fwd, in_bwd, weight):
-        """L_new = Le(new direction) + weight * f * (incoming along +-d) / A_i, per patch
-        and chain, for +new_dirs (and -new_dirs when bidirectional); with ``first_shot``
-        the direct light T Le replaces Le."""
-        new_L = []
-        for out_dirs in ((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
+    def _reflect_into(self, scene, layout, rng_patch, dirs, new_dirs, incoming, weight):
+        """L_new = Le(new direction) + R, R = weight * f * (incoming along +-d) / A_i, per
+        patch and chain, for +new_dirs (and -new_dirs when bidirectional); with
+        ``first_shot`` the direct light T Le replaces Le. Returns (L, R) as
+        :meth:`_initial_radiance`."""
+        L, R = [None, None], [None, None]
+        for k, out_dirs in enumerate((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
             si, tri, chain = self._patch_interaction(layout, rng_patch, out_dirs)
             d = dr.gather(mi.Vector3f, dirs, chain)
             # degenerate triangles: never hit, no NaN
             area = dr.maximum(dr.gather(mi.Float, layout.table.area, tri), 1e-30)
-            L = self._source(scene, si, rng_patch)
-            L += weight * self._reflect(si, in_fwd / area, -d)
-            if in_bwd is not None:
-                L += weight * self._reflect(si, in_bwd / area, d)
-            new_L.append(L)
-        return new_L[0], (new_L[1] if self.bidirectional else None)
+            R[k] = weight * self._reflect(si, incoming[0] / area, -d)
+            if incoming[1] is not None:
+                R[k] += weight * self._reflect(si, incoming[1] / area, d)
+            L[k] = self._source(scene, si, rng_patch) + R[k]
+        return L, R
+
+    def _final_gathering(self, scene, layout, sensor, seed, all_dirs, weight, average, progress):
+        """The image of the averaged diffuse patches, the direct light and the seen
+        emission: one pass per averaged iteration that finished (same camera samples and
+        chain directions as that iteration), from the final averages. Ctrl-C (or the
+        progress callback) ends it after the current pass; the image averages the
+        finished passes."""
+        accum, finished = None, 0
+        for k in progress.second_stage(progress.averaged):
+            m = self.burn_in + k
+            try:
+                pass_image = self._image_estimate(scene, layout, sensor, m, seed, _chain_directions(all_dirs[m]),
+                                                  None, None, weight, "average", average)
+                dr.eval(pass_image)
+            except KeyboardInterrupt:
+                if accum is None:
+                    raise          # no finished pass: there is no image to keep
+                progress.stop()
+                break
+            accum = pass_image if accum is None else accum + pass_image
+            finished += 1
+        return accum / finished
 
     def _global_directions(self, count, seed):
         """The global direction of every chain for ``count`` iterations: numpy
@@ -411,37 +559,40 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                              initseq=mi.UInt64(dr.arange(mi.UInt32, layout.slots)))
 
         dirs = _chain_directions(all_dirs[0])
-        L_fwd, L_bwd = self._initial_radiance(scene, layout, rng_patch, dirs)
-        dr.eval(L_fwd, L_bwd, rng_patch.state)
+        L, R = self._initial_radiance(scene, layout, rng_patch, dirs)
+        dr.eval(L, rng_patch.state)
 
+        average = DiffuseAverage(layout.table, self.estimate) if self.average_diffuse else None
+        # without averaging every iteration images everything ('all'); with it, the
+        # iterations image only the patches that are not averaged ('current', skipped when
+        # there are none) and the final gathering images the averaged ones ('average')
+        part = "all" if average is None else "current"
+        image_per_iteration = average is None or not average.covers_all
         accum = dr.zeros(mi.Float, n_pix * 3)
-        progress = Progress(self, total, burn_in)
+        progress = Progress(self, total, burn_in, self.iteration_count(spp))
         try:
             for m in progress:
-                in_fwd, in_bwd = self._transfer(scene, layout, dirs, L_fwd,
-                                                L_bwd if L_bwd is not None else L_fwd, rng_lines, center, radius)
+                incoming = self._transfer(scene, layout, dirs, L[0], L[1] if L[1] is not None else L[0],
+                                          rng_lines, center, radius)
                 if not self.bidirectional:
-                    in_bwd = None
-                new_accum = accum
+                    incoming = (incoming[0], None)
                 if m >= burn_in:
-                    # one fresh camera sample per pixel, chain and iteration
-                    paths = camera_paths(scene, sensor, chains, seed * 1000081 + m, -1, self.hide_emitters)
-                    rng_cam = mi.PCG32(paths.count, initstate=dr.opaque(mi.UInt64, seed * 1000099 + m * 31 + 5),
-                                       initseq=mi.UInt64(dr.arange(mi.UInt32, paths.count)))
-                    if self.estimate == "gather":
-                        est = self._gather(scene, layout, paths, dirs, L_fwd, L_bwd, weight, rng_cam)
-                    else:
-                        est = self._patch_estimate(scene, layout, paths, dirs, in_fwd, in_bwd, weight, rng_cam)
-                    new_accum = accum + paths.emission_image
-                    for c in range(3):
-                        dr.scatter_add(new_accum, est[c] / chains, paths.pixel * 3 + c, mode=SPLAT_MODE)
+                    if average is not None:
+                        # the average holds what the gathered point does not add itself
+                        average.add(layout, dirs, L if self.first_shot and not self.gather_nee else R,
+                                    incoming, weight)
+                    if image_per_iteration:
+                        accum = accum + self._image_estimate(scene, layout, sensor, m, seed, dirs, L, incoming,
+                                                             weight, part, average)
                 # new global direction per chain and reflection into it
                 new_dirs = _chain_directions(all_dirs[m + 1])
-                L_fwd_new, L_bwd_new = self._reflect_into(scene, layout, rng_patch, dirs, new_dirs,
-                                                          in_fwd, in_bwd, weight)
-                dr.eval(L_fwd_new, L_bwd_new, new_accum, rng_lines.state, rng_patch.state)
-                L_fwd, L_bwd, accum, dirs = L_fwd_new, L_bwd_new, new_accum, new_dirs
+                L, R = self._reflect_into(scene, layout, rng_patch, dirs, new_dirs, incoming, weight)
+                dr.eval(L, R if average is not None else None, accum, rng_lines.state, rng_patch.state,
+                        average.state() if average is not None else None)
+                dirs = new_dirs
         except KeyboardInterrupt:
             progress.stop()  # Ctrl-C: keep the finished iterations
-        image = accum / max(progress.averaged, 1)
+        image = accum / max(progress.averaged, 1) if image_per_iteration else accum
+        if average is not None and progress.averaged > 0:
+            image = image + self._final_gathering(scene, layout, sensor, seed, all_dirs, weight, average, progress)
         return image_to_film(film, mi.TensorXf(image, shape=(height, width, 3)), develop)

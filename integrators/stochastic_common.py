@@ -84,9 +84,10 @@ class Progress:
     caught by the caller, which then calls :meth:`stop`.
     """
 
-    def __init__(self, owner, total, burn_in):
+    def __init__(self, owner, total, burn_in, steps=None):
         self.owner, self.total, self.burn_in = owner, int(total), int(burn_in)
-        self.done, self.interrupted = 0, False
+        self.steps = self.total if steps is None else int(steps)   # what the callback reports as total
+        self.done, self.interrupted, self.extra_done = 0, False, 0
         owner.iterations_done, owner.interrupted, owner.averaged_fraction = 0, False, 0.0
 
     @property
@@ -97,23 +98,41 @@ class Progress:
         for it in range(self.total):
             yield it
             self.done = it + 1
-            self._publish()
-            callback = getattr(self.owner, "progress_callback", None)
-            if callback is not None:
-                try:
-                    if callback(self.done, self.total) is False:
-                        self.stop()
-                        return
-                except KeyboardInterrupt:
+            if not self._report():
+                return
+
+    def second_stage(self, count):
+        """Iterate over ``range(count)`` steps of a second stage that runs after the
+        iterations (``ray_bundle``'s final gathering), reporting them to the callback
+        after the iterations (out of ``steps``). The first step always runs; a stop
+        request ends the stage after the current step. ``extra_done`` counts them."""
+        for k in range(count):
+            yield k
+            self.extra_done = k + 1
+            if not self._report():
+                return
+
+    def _report(self):
+        """Publish, call the callback; False when it asks to stop (or raises
+        KeyboardInterrupt)."""
+        self._publish()
+        callback = getattr(self.owner, "progress_callback", None)
+        if callback is not None:
+            try:
+                if callback(self.done + self.extra_done, self.steps) is False:
                     self.stop()
-                    return
+                    return False
+            except KeyboardInterrupt:
+                self.stop()
+                return False
+        return True
 
     def stop(self):
         self.interrupted = True
         self._publish()
 
     def _publish(self):
-        self.owner.iterations_done = self.done
+        self.owner.iterations_done = self.done + self.extra_done
         self.owner.interrupted = self.interrupted
         self.owner.averaged_fraction = self.averaged / max(1, self.total - self.burn_in)
 

@@ -106,6 +106,13 @@ INTEGRATORS = {
                                             case_params={name: {"burn_in": 32, "iterations": 72}
                                                          for name in HIGH_ALBEDO_CASES},
                                             not_applicable={"constant_brdf_roughconductor_box": RAY_BUNDLE_GLOSSY}),
+    # and with the final gathering from averaged diffuse patches (average_diffuse)
+    "ray_bundle+average": IntegratorSpec({"type": "ray_bundle", "iterations": 48, "resolution": 32, "chains": 64,
+                                          "first_shot": True, "average_diffuse": True},
+                                         spp=1, runs=8, quick_spp=1, quick_runs=6, requires_meshes=True,
+                                         case_params={name: {"burn_in": 32, "iterations": 72}
+                                                      for name in HIGH_ALBEDO_CASES},
+                                         not_applicable={"constant_brdf_roughconductor_box": RAY_BUNDLE_GLOSSY}),
 }
 
 
