@@ -576,20 +576,21 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
                                           rng_lines, center, radius)
                 if not self.bidirectional:
                     incoming = (incoming[0], None)
+                new_accum = accum
                 if m >= burn_in:
                     if average is not None:
                         # the average holds what the gathered point does not add itself
                         average.add(layout, dirs, L if self.first_shot and not self.gather_nee else R,
                                     incoming, weight)
                     if image_per_iteration:
-                        accum = accum + self._image_estimate(scene, layout, sensor, m, seed, dirs, L, incoming,
-                                                             weight, part, average)
+                        new_accum = accum + self._image_estimate(scene, layout, sensor, m, seed, dirs, L,
+                                                                 incoming, weight, part, average)
                 # new global direction per chain and reflection into it
                 new_dirs = _chain_directions(all_dirs[m + 1])
                 L, R = self._reflect_into(scene, layout, rng_patch, dirs, new_dirs, incoming, weight)
-                dr.eval(L, R if average is not None else None, accum, rng_lines.state, rng_patch.state,
+                dr.eval(L, R if average is not None else None, new_accum, rng_lines.state, rng_patch.state,
                         average.state() if average is not None else None)
-                dirs = new_dirs
+                dirs, accum = new_dirs, new_accum   # (Ctrl-C before this line: iteration m is not kept)
         except KeyboardInterrupt:
             progress.stop()  # Ctrl-C: keep the finished iterations
         image = accum / max(progress.averaged, 1) if image_per_iteration else accum
