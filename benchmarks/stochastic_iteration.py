@@ -218,17 +218,18 @@ def methods(args):
     doubling = [2 ** k for k in range(20)]
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
-    rb = lambda n, fs=False, avg=False: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
-                                              resolution=args.bundle_resolution, chains=args.bundle_chains,
-                                              estimate=args.bundle_estimate, first_shot=fs, average_diffuse=avg), 1)
+    rb = lambda n, **extra: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
+                                  resolution=args.bundle_resolution, chains=args.bundle_chains,
+                                  estimate=args.bundle_estimate, **extra), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),
         "stochastic_ray": Method("stochastic_ray", doubling, lambda b: (dict(sr), b), "spp"),
         "ray_bundle": Method("ray_bundle", rb_ladder, rb, "iterations"),
-        "ray_bundle_fs": Method("ray_bundle_fs", rb_ladder, lambda n: rb(n, True), "iterations"),
+        "ray_bundle_fs": Method("ray_bundle_fs", rb_ladder, lambda n: rb(n, first_shot=True), "iterations"),
         "ray_bundle_avg": Method("ray_bundle_avg", rb_ladder,
-                                 lambda n: (dict(rb(n, True, True)[0], gather_nee=args.gather_nee), 1), "iterations"),
+                                 lambda n: rb(n, first_shot=True, average_diffuse=True, gather_nee=args.gather_nee),
+                                 "iterations"),
     }
 
 
@@ -615,19 +616,26 @@ def main():
     if args.worker:
         names = [args.worker.split(":")[0]]
     scenes = make_scenes(names, args.resolution, args.room_cells, ref_spp, args.room_mesh == "conforming")
+    min_points = args.min_points or (2 if args.quick else 3)
+
+    def measure(case, meths):
+        """Ladders (interleaved), then ray counts: {integrator: curve}, {integrator: rays}, {integrator: how}."""
+        curves = run_scene(case, meths, seconds, args.max_points, min_points, args.repeats)
+        rays, how = {}, {}
+        for mname, m in meths.items():
+            rays[mname], how[mname] = count_rays(case, m, [pt["budget"] for pt in curves[mname]])
+        return curves, rays, how
+
     if args.worker:
         sname, mname = args.worker.split(":")
-        curves = run_scene(scenes[sname], {mname: meths[mname]}, seconds, args.max_points,
-                           args.min_points or (2 if args.quick else 3), args.repeats)
-        rays, how = count_rays(scenes[sname], meths[mname], [pt["budget"] for pt in curves[mname]])
-        print(WORKER_MARK + json.dumps(dict(curves=curves[mname], rays=rays, how=how)))
+        curves, rays, how = measure(scenes[sname], {mname: meths[mname]})
+        print(WORKER_MARK + json.dumps(dict(curves=curves[mname], rays=rays[mname], how=how[mname])))
         return
 
     def run_isolated(sname, mname):
         """One integrator's ladder and ray count on one scene, in a fresh process."""
-        argv = [a for a in sys.argv[1:]]
-        out = subprocess.run([sys.executable, os.path.abspath(__file__), *argv, "--worker", "%s:%s" % (sname, mname)],
-                             capture_output=True, text=True)
+        out = subprocess.run([sys.executable, os.path.abspath(__file__), *sys.argv[1:], "--worker",
+                              "%s:%s" % (sname, mname)], capture_output=True, text=True)
         lines = [l for l in out.stdout.splitlines() if l.startswith(WORKER_MARK)]
         if out.returncode != 0 or not lines:
             raise RuntimeError("worker %s:%s failed:\n%s\n%s" % (sname, mname, out.stdout[-2000:], out.stderr[-4000:]))
@@ -646,11 +654,7 @@ def main():
             for mname in meths:
                 curves[mname], rays[mname], how[mname] = run_isolated(sname, mname)
         else:
-            curves = run_scene(case, meths, seconds, args.max_points, args.min_points or (2 if args.quick else 3),
-                               args.repeats)
-            rays, how = {}, {}
-            for mname, m in meths.items():
-                rays[mname], how[mname] = count_rays(case, m, [pt["budget"] for pt in curves[mname]])
+            curves, rays, how = measure(case, meths)
         for mname in meths:
             warns += monotone_warnings(sname, mname, curves[mname])
         print("  [%s: %d renders and ray counting in %.1f s%s]"

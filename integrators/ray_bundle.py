@@ -287,6 +287,11 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         total = self.iterations * int(spp)
         return total + (total - self.burn_in if self.average_diffuse else 0)
 
+    def _both_ways(self, x):
+        """(x, -x) when the bundles are used in both directions, else (x,): the global
+        direction(s), or their signs, of one iteration."""
+        return (x, -x) if self.bidirectional else (x,)
+
     # ------------------------------------------------------------------ patches
     def _patch_interaction(self, layout, rng, out_dirs):
         """A uniformly random point of every patch of every chain, seen from the chain's
@@ -386,7 +391,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         bsdf = si.bsdf(paths.ray)
         result = mi.Color3f(0.0)
         ctx = mi.BSDFContext()
-        for k, sign in enumerate((1.0, -1.0) if self.bidirectional else (1.0,)):
+        for k, sign in enumerate(self._both_ways(1.0)):
             L_dir = L[k] if L is not None else None     # not needed for the averaged part
             travel = d * sign                      # radiance travels along `travel`
             wo = si.to_local(-travel)              # toward its source
@@ -441,7 +446,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         else:
             area = dr.gather(mi.Float, table.area, tri, valid)
             slot = layout.slot_of(tri, chain)
-            for k, sign in enumerate((1.0, -1.0) if self.bidirectional else (1.0,)):
+            for k, sign in enumerate(self._both_ways(1.0)):
                 inc = dr.gather(mi.Color3f, incoming[k], slot, valid) / dr.maximum(area, 1e-30)
                 result += dr.select(valid, self._reflect(si, inc, -d * sign), 0.0) * weight
             if part == "current":
@@ -482,7 +487,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         (with ``first_shot``: the direct light T Le). Returns (L, R): lists (+d, -d or
         None) of the radiance and of its part carried by the bundles (zero here)."""
         L = [None, None]
-        for k, out_dirs in enumerate((dirs, -dirs) if self.bidirectional else (dirs,)):
+        for k, out_dirs in enumerate(self._both_ways(dirs)):
             si, _, _ = self._patch_interaction(layout, rng_patch, out_dirs)
             L[k] = self._source(scene, si, rng_patch)
         return L, [None if x is None else dr.zeros(mi.Color3f, layout.slots) for x in L]
@@ -493,7 +498,7 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
         ``first_shot`` the direct light T Le replaces Le. Returns (L, R) as
         :meth:`_initial_radiance`."""
         L, R = [None, None], [None, None]
-        for k, out_dirs in enumerate((new_dirs, -new_dirs) if self.bidirectional else (new_dirs,)):
+        for k, out_dirs in enumerate(self._both_ways(new_dirs)):
             si, tri, chain = self._patch_interaction(layout, rng_patch, out_dirs)
             d = dr.gather(mi.Vector3f, dirs, chain)
             # degenerate triangles: never hit, no NaN
