@@ -8,8 +8,24 @@ import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
 import mi_plugins  # noqa: E402,F401  (registers the plugins)
+from mi_plugins.analytic import harness  # noqa: E402
+
+import budget  # noqa: E402
+from budget import seed  # noqa: E402,F401  (re-exported for the tests)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# Every comparison of the harness is recorded (power rule, false-failure budget), and
+# every harness render is shifted by the seed offset (MI_PLUGINS_SEED_OFFSET).
+harness.OBSERVERS.append(budget.observe)
+_render_runs = harness.render_runs
+
+
+def _render_runs_with_offset(scene, spp, runs, seed):
+    return _render_runs(scene, spp, runs, budget.seed(seed))
+
+
+harness.render_runs = _render_runs_with_offset
 
 
 def furnace_rmse(integrator, seeds, resolution, geometry="box"):
@@ -49,3 +65,20 @@ def _primary_variant():
         mi.set_variant("llvm_ad_rgb")
         mi_plugins.register()
     yield
+
+
+@pytest.fixture(autouse=True)
+def _power_rule(request):
+    """Names the running test for the statistics records; a passing harness check
+    without the power the rule asks for fails the test (at teardown)."""
+    budget._current["test"] = request.node.nodeid
+    yield
+    budget._current["test"] = None
+    violations = budget.power_violations(request.node.nodeid)
+    if violations:
+        pytest.fail("power rule (tests/budget.py):\n  " + "\n  ".join(violations), pytrace=False)
+
+
+def pytest_terminal_summary(terminalreporter):
+    for line in budget.summary():
+        terminalreporter.write_line(line)
