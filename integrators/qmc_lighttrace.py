@@ -84,6 +84,7 @@ import numpy as np
 from mi_plugins import qmc
 from mi_plugins.sampling import direct_light
 from mi_plugins.meshtable import MeshTable
+from mi_plugins.integrators.stochastic_common import check_variant
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
 
@@ -98,6 +99,7 @@ def _int(props, name, default, minimum):
 class QMCLightTraceIntegrator(mi.SamplingIntegrator):
     def __init__(self, props):
         super().__init__(props)
+        check_variant("qmc_lighttrace")
         self.sequence = props.get("sequence", "sobol")
         if self.sequence not in SEQUENCES:
             raise ValueError("qmc_lighttrace: sequence=%r must be one of %s" % (self.sequence, ", ".join(SEQUENCES)))

@@ -37,7 +37,12 @@ CHI2_ALPHA = 1e-4
 RATIO_ALPHA = 1e-4
 
 #: checks allowed a larger relative tolerance: {test id prefix: (limit, reason)}
-EXCEPTIONS = {}
+EXCEPTIONS = {
+    "tests/test_constant_radiance.py::test_ptracer_with_late_roulette_is_unbiased_with_negative_simulated_emission":
+        (0.2, "control of the ptracer roulette finding: simulated emission with the uniform estimator on a "
+              "glossy conductor has single estimates of 1 - a swinging far both ways; 16 runs x 64 spp detect "
+              "about 11 %, enough to rule out the finding's 44 % (2 % would take ~40x the samples)"),
+}
 
 SEED_OFFSET = int(os.environ.get("MI_PLUGINS_SEED_OFFSET", "0") or 0)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

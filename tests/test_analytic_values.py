@@ -119,5 +119,5 @@ def test_mesh_diffuse_sphere_mean_emission_from_the_loaded_meshes():
 
 def test_mesh_diffuse_sphere_passes_path_with_its_stated_tolerance():
     case = analytic.diffuse_sphere(albedo=0.5, geometry="sphere_mesh", resolution=16)
-    res = analytic.check(case, {"type": "path", "max_depth": 2}, spp=256, runs=8, bias=case.known_bias)
+    res = analytic.check(case, {"type": "path", "max_depth": 2}, spp=128, runs=16, bias=case.known_bias)
     assert res.passed, res

@@ -9,6 +9,7 @@ import pytest
 
 from mi_plugins import analytic
 from mi_plugins.analytic import export, harness
+from mi_plugins.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
 
 from conftest import REPO
 
@@ -42,16 +43,25 @@ def _without_texture_names(text):
     return re.sub(r"textures/\S+?\.exr", "TEX", text)
 
 
+#: the glossy box has albedos close to one (long, noisy paths): more samples for the power rule
+SPP = {"constant_brdf_roughconductor_box": 128}
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_xml_loads_and_renders_its_exact_value(name):
+    """Each file renders (with its default integrator, `path`) the exact value it states.
+    Mitsuba's sphere finding (README: Findings) is the explicit, bounded bias where it
+    applies."""
     path = os.path.join(CONFIGS, name + ".xml")
     text = open(path).read()
     assert "EXACT RADIANCE" in text
-    scene = mi.load_file(path, spp=16)
-    images = harness.render_runs(scene, spp=16, runs=4, seed=0)
-    out = harness.compare(images, analytic.cases()[name]().expected())
-    case_known = name == "furnace_sphere"  # Mitsuba finding, see README
-    assert out["passed"] or case_known, out["failures"]
+    case = analytic.cases()[name]()
+    spp = SPP.get(name, 16)
+    scene = mi.load_file(path, spp=spp)
+    images = harness.render_runs(scene, spp=spp, runs=16, seed=0)
+    known = name in INTEGRATORS["path"].known_failures
+    out = harness.compare(images, case.expected(), bias=SPHERE_NEE_BIAS * case.expected_mean() if known else 0.0)
+    assert out["passed"], out["failures"]
     m = re.search(r"L = ([0-9.eE+-]+), ([0-9.eE+-]+), ([0-9.eE+-]+) \(RGB\) at every pixel", text)
     if m:
         stated = np.array([float(v) for v in m.groups()])

@@ -7,14 +7,40 @@ import mitsuba as mi
 import mi_plugins
 from mi_plugins import _llvm, registry
 
-from conftest import REPO, run_python
+from conftest import REPO, run_python, scalar_variant_refusal
+
+#: the package's public plugins, written out independently of the folders' PLUGINS tables
+EXPECTED_PLUGINS = {
+    "integrator": ["qmc_lighttrace", "ray_bundle", "stochastic_ray"],
+    "bsdf": ["phong", "separable"],
+    "emitter": ["directional_area", "simulated_area"],
+    "sampler": ["faure", "halton", "sobol"],
+}
 
 
-def test_every_listed_plugin_is_registered():
-    table = registry.plugin_table()
+def test_every_plugin_is_registered_and_loads():
+    """register() reports exactly the public plugins, and each one loads through
+    Mitsuba's plugin manager (mi.load_dict) as the class its folder names."""
     registered = mi_plugins.register()
-    for kind, plugins in table.items():
-        assert sorted(registered.get(kind, [])) == sorted(plugins)
+    assert {k: sorted(v) for k, v in registered.items()} == EXPECTED_PLUGINS
+    table = registry.plugin_table()
+    minimal = {"simulated_area": {"target_radiance": 1.0}, "separable": {"target_radiance": 1.0}}
+    for kind, names in EXPECTED_PLUGINS.items():
+        for name in names:
+            d = dict({"type": name}, **minimal.get(name, {}))
+            if kind == "emitter":   # area emitters need a shape
+                obj = mi.load_dict({"type": "rectangle", "emitter": d}).emitter()
+            else:
+                obj = mi.load_dict(d)
+            assert type(obj).__name__ == table[kind][name].split(":")[1], (name, type(obj))
+
+
+@pytest.mark.parametrize("integrator", EXPECTED_PLUGINS["integrator"])
+def test_integrators_refuse_a_scalar_variant_themselves(integrator):
+    """Registered for scalar_rgb regardless of register()'s refusal, each integrator's
+    constructor refuses the variant with a message naming it and a supported one."""
+    refused, out = scalar_variant_refusal(integrator)
+    assert refused and "%s: variant 'scalar_rgb' is not supported" % integrator in out and "llvm_ad_rgb" in out, out
 
 
 def test_import_without_variant_names_supported_variants():
@@ -35,7 +61,7 @@ def test_variant_switch_refuses_mono_and_reregisters_rgb():
             "try:\n    mi_plugins.register()\nexcept mi_plugins.VariantError as e:\n    print('REFUSED', e)\n"
             "mi.set_variant('llvm_ad_rgb'); r = mi_plugins.register()\n"
             "from mi_plugins import analytic\n"
-            "res = analytic.check(analytic.furnace(resolution=8), 'path', spp=16, runs=4)\n"
+            "res = analytic.check(analytic.furnace(resolution=8), 'path', spp=4, runs=16)\n"
             "print('OK', res.passed, sorted(sum(r.values(), [])))")
     r = run_python(code)
     assert r.returncode == 0, r.stderr
