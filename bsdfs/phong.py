@@ -36,7 +36,8 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.sampling import square_to_power_cosine_hemisphere
-from mi_plugins.textures import texture_min, texture_param, texture_sum_max
+from mi_plugins.params import Params
+from mi_plugins.textures import texture_sum_max
 
 
 def _reflect(wi):
@@ -50,17 +51,15 @@ def _mean(c):
 class PhongBSDF(mi.BSDF):
     def __init__(self, props):
         super().__init__(props)
-        self.kd = texture_param(props, "diffuse_reflectance", 0.5, "phong")
-        self.ks = texture_param(props, "specular_reflectance", 0.2, "phong")
-        self.exponent = float(props.get("exponent", 10.0))
-        if not self.exponent >= 0:
-            raise ValueError("phong: exponent=%r must be >= 0" % (self.exponent,))
-        if texture_min(self.kd) < 0 or texture_min(self.ks) < 0:
-            raise ValueError("phong: diffuse_reflectance and specular_reflectance must be >= 0")
+        p = Params(props, "phong")
+        self.kd = p.texture("diffuse_reflectance", 0.5, lo=0)
+        self.ks = p.texture("specular_reflectance", 0.2, lo=0)
+        self.exponent = p.float("exponent", 10.0, lo=0)
         total = texture_sum_max(self.kd, self.ks)
         if total > 1.0 + 1e-6:
-            raise ValueError("phong: diffuse_reflectance + specular_reflectance reaches %.4g; it must be <= 1 "
-                             "in every channel for an energy-conserving BSDF" % total)
+            raise p.conflict(("diffuse_reflectance", "specular_reflectance"),
+                             "diffuse_reflectance + specular_reflectance <= 1 in every channel for an "
+                             "energy-conserving BSDF (the sum reaches %.4g)" % total)
         self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
                              mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0] | self.m_components[1]

@@ -53,44 +53,29 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.sampling import IsotropicLobe, Salt, hashed_rng
+from mi_plugins.params import Params, parameter_error
 from mi_plugins.textures import texture_max
 
 NORMALIZATIONS = ("exact", "simulated")
 
 
-def _rgb_param(props, name, plugin):
-    value = props.get(name)
-    try:
-        return np.array([float(value)] * 3)
-    except TypeError:
-        return np.array([float(v) for v in value])
-
-
 class SeparableBSDF(mi.BSDF):
     def __init__(self, props):
         super().__init__(props)
-        if "target_radiance" not in props:
-            raise ValueError("separable: parameter 'target_radiance' (L~ > max emission) is required")
-        self.target = _rgb_param(props, "target_radiance", "separable")
-        if np.any(self.target <= 0):
-            raise ValueError("separable: target_radiance=%s must be > 0" % (self.target.tolist(),))
-        self.emission = props.get("emission") if "emission" in props else None
-        if self.emission is not None and not hasattr(self.emission, "hemispherical_integral"):
-            raise ValueError("separable: 'emission' must reference a 'directional_area' emitter (got %s)"
-                             % type(self.emission).__name__)
-        self.normalization = props.get("normalization", "exact")
-        if self.normalization not in NORMALIZATIONS:
-            raise ValueError("separable: normalization=%r must be one of %s"
-                             % (self.normalization, ", ".join(NORMALIZATIONS)))
-        self.samples = props.get("samples", 16)
-        if not isinstance(self.samples, int) or self.samples < 1:
-            raise ValueError("separable: samples=%r must be an integer >= 1" % (self.samples,))
+        from mi_plugins.emitters.directional_area import DirectionalAreaEmitter  # the current variant's class
+        p = Params(props, "separable")
+        self.target = p.rgb("target_radiance", lo=0, lo_open=True, required=True)
+        self.emission = p.reference("emission", DirectionalAreaEmitter,
+                                    "a reference to the 'directional_area' emitter of the shape this BSDF "
+                                    "sits on (<ref name=\"emission\" id=\"...\"/>)")
+        self.normalization = p.choice("normalization", "exact", NORMALIZATIONS)
+        self.samples = p.int("samples", 16, lo=1)
         if self.emission is not None:
             max_emission = texture_max(self.emission.radiance_texture) * self._max_profile()
             if not np.all(self.target > max_emission):
-                raise ValueError("separable: target_radiance=%s must exceed the maximum emission %.6g of the "
-                                 "surface (otherwise the BSDF would be negative)"
-                                 % (self.target.tolist(), max_emission))
+                raise p.conflict(("target_radiance", "emission"),
+                                 "target_radiance must exceed the maximum emission %.6g of the surface in every "
+                                 "channel (otherwise the BSDF would be negative)" % max_emission)
         self._checked = False
         self.salt = Salt()
         self._lobe = self._importance_lobe()
@@ -120,10 +105,12 @@ class SeparableBSDF(mi.BSDF):
             return
         shape = self.emission.get_shape()
         if shape is None or shape.bsdf() is not self:
-            raise ValueError("separable: 'emission' must reference the emitter of the shape this BSDF sits on "
-                             "(<ref name=\"emission\" id=\"...\"/> to that shape's emitter); it is %s"
-                             % ("not attached to any shape" if shape is None
-                                else "attached to shape '%s', which has another BSDF" % shape.id()))
+            raise parameter_error("separable", [("emission", self.emission)],
+                                  "a reference to the emitter of the shape this BSDF sits on "
+                                  "(<ref name=\"emission\" id=\"...\"/> to that shape's emitter); the emitter "
+                                  "referenced is %s"
+                                  % ("not attached to any shape" if shape is None
+                                     else "attached to shape '%s', which has another BSDF" % shape.id()))
         self._checked = True
 
     # ------------------------------------------------------------ the formula

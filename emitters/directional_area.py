@@ -43,20 +43,9 @@ import numpy as np
 from mi_plugins.emitters.surface_emitter import SurfaceEmitter
 from mi_plugins.sampling import (IsotropicLobe, square_to_power_cosine_hemisphere,
                                  square_to_power_cosine_hemisphere_pdf)
-from mi_plugins.textures import texture_min, texture_param
+from mi_plugins.params import NOT_GIVEN, Params, parameter_error
 
 PROFILES = ("cosine_power", "tabulated")
-
-
-def _parse_values(value):
-    if isinstance(value, str):
-        items = [v for v in value.replace(",", " ").split() if v]
-    else:
-        items = list(value)
-    try:
-        return np.array([float(v) for v in items], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError("directional_area: values=%r must be a list of floats" % (value,)) from None
 
 
 def tabulated_hemispherical_integral(values):
@@ -78,28 +67,26 @@ def tabulated_hemispherical_integral(values):
 class DirectionalAreaEmitter(SurfaceEmitter):
     def __init__(self, props):
         super().__init__(props)
-        self.radiance_texture = texture_param(props, "radiance", 1.0, "directional_area")
-        if texture_min(self.radiance_texture) < 0:
-            raise ValueError("directional_area: radiance must be >= 0")
-        self.profile = props.get("profile", "cosine_power")
-        if self.profile not in PROFILES:
-            raise ValueError("directional_area: profile=%r must be one of %s" % (self.profile, ", ".join(PROFILES)))
+        p = Params(props, "directional_area")
+        self.radiance_texture = p.texture("radiance", 1.0, lo=0)
+        self.profile = p.choice("profile", "cosine_power", PROFILES)
+        exponent = p.float("exponent", 1.0, lo=0)
+        values = p.floats("values", lo=0, min_count=2)
         if self.profile == "cosine_power":
-            self.exponent = float(props.get("exponent", 1.0))
-            if not self.exponent >= 0:
-                raise ValueError("directional_area: exponent=%r must be >= 0" % (self.exponent,))
-            self.values = None
+            if values is not None:
+                raise p.conflict(("values", "profile"), "'values' only with profile='tabulated'")
+            self.exponent, self.values = exponent, None
         else:
-            if "values" not in props:
-                raise ValueError("directional_area: profile='tabulated' needs 'values' (profile samples over "
-                                 "theta in [0, pi/2])")
-            self.values = _parse_values(props.get("values"))
-            if len(self.values) < 2 or np.any(self.values < 0) or not np.all(np.isfinite(self.values)):
-                raise ValueError("directional_area: values=%s must hold at least 2 finite values >= 0"
-                                 % (self.values.tolist(),))
+            if p.given("exponent"):
+                raise p.conflict(("exponent", "profile"), "'exponent' only with profile='cosine_power'")
+            if values is None:
+                raise p.conflict(("values", "profile"), "profile='tabulated' needs 'values' (at least 2 profile "
+                                 "samples >= 0 over theta in [0, pi/2], e.g. '1, 0.5, 0')")
+            if not np.any(values > 0):
+                raise p.error("values", "a string of at least 2 comma-separated finite numbers >= 0, not all 0 "
+                                        "(these values emit nothing)")
+            self.values = values
             self._table = mi.Float(self.values)
-            if not np.any(self.values > 0):
-                raise ValueError("directional_area: values=%s emit nothing" % (self.values.tolist(),))
             # importance sampling proportional to profile * cos, tabulated in theta
             self._lobe = IsotropicLobe(self.profile_at_theta)
 
@@ -153,10 +140,12 @@ class DirectionalAreaEmitter(SurfaceEmitter):
         shape = self._shape()
         bsdf = shape.bsdf()
         if hasattr(bsdf, "emission") and hasattr(bsdf, "normalization") and bsdf.emission is not self:
-            raise ValueError("directional_area: shape '%s' carries a 'separable' BSDF whose 'emission' does not "
-                             "reference this emitter (%s); add <ref name=\"emission\" id=\"...\"/> to its emitter"
-                             % (shape.id(), "it has no emission" if bsdf.emission is None else
-                                "it references another emitter"))
+            raise parameter_error("separable", [("emission", NOT_GIVEN if bsdf.emission is None else bsdf.emission)],
+                                  "a reference to this emitter: shape '%s' carries a 'directional_area' emitter and a "
+                                  "'separable' BSDF whose 'emission' does not reference this emitter (%s); add "
+                                  "<ref name=\"emission\" id=\"...\"/> to its emitter"
+                                  % (shape.id(), "it has no emission" if bsdf.emission is None else
+                                     "it references another emitter"))
         self._partner_checked = True
 
     # ----------------------------------------------------------- SurfaceEmitter interface

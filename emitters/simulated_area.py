@@ -43,42 +43,27 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.emitters.surface_emitter import SurfaceEmitter
+from mi_plugins.params import Params, parameter_error
 from mi_plugins.sampling import Salt, hashed_rng, hemisphere_pdf, sample_hemisphere
 
 ESTIMATORS = ("uniform", "cosine", "bsdf")
 
 
-def _target_radiance(props):
-    if not "target_radiance" in props:
-        raise ValueError("simulated_area: parameter 'target_radiance' (L~, float or RGB > 0) is required")
-    value = props.get("target_radiance")
-    try:
-        rgb = [float(value)] * 3
-    except TypeError:
-        rgb = [float(v) for v in value]
-    if min(rgb) <= 0:
-        raise ValueError("simulated_area: target_radiance=%s must be > 0 in every channel" % (rgb,))
-    return rgb
-
-
 class SimulatedAreaEmitter(SurfaceEmitter):
     def __init__(self, props):
         super().__init__(props)
-        self.target = _target_radiance(props)
-        self.samples = props.get("samples", 1)
-        if not isinstance(self.samples, int) or self.samples < 1:
-            raise ValueError("simulated_area: samples=%r must be an integer >= 1" % (self.samples,))
-        self.estimator = props.get("estimator", "uniform")
-        if self.estimator not in ESTIMATORS:
-            raise ValueError("simulated_area: estimator=%r must be one of %s"
-                             % (self.estimator, ", ".join(ESTIMATORS)))
+        p = Params(props, "simulated_area")
+        self.target = p.rgb("target_radiance", lo=0, lo_open=True, required=True).tolist()
+        self.samples = p.int("samples", 1, lo=1)
+        self.estimator = p.choice("estimator", "uniform", ESTIMATORS)
         self.salt = Salt()
 
     def _bsdf(self):
         bsdf = self._shape().bsdf()
         if self.estimator != "bsdf" and mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta):
-            raise ValueError("simulated_area: the BSDF of shape '%s' has delta lobes, which estimator=%r "
-                             "cannot sample; use estimator='bsdf'" % (self._shape().id(), self.estimator))
+            raise parameter_error("simulated_area", [("estimator", self.estimator)],
+                                  "'bsdf' here: the BSDF of shape '%s' has delta lobes, which estimator=%r "
+                                  "cannot sample; use estimator='bsdf'" % (self._shape().id(), self.estimator))
         return bsdf
 
     def albedo_estimate(self, si, wo, active):

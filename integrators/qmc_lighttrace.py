@@ -85,40 +85,33 @@ from mi_plugins import qmc
 from mi_plugins.sampling import direct_light
 from mi_plugins.meshtable import MeshTable
 from mi_plugins.integrators.stochastic_common import check_variant
+from mi_plugins.params import Params
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
-
-
-def _int(props, name, default, minimum):
-    value = props.get(name, default)
-    if not isinstance(value, int) or value < minimum:
-        raise ValueError("qmc_lighttrace: %s=%r must be an integer >= %d" % (name, value, minimum))
-    return value
 
 
 class QMCLightTraceIntegrator(mi.SamplingIntegrator):
     def __init__(self, props):
         super().__init__(props)
         check_variant("qmc_lighttrace")
-        self.sequence = props.get("sequence", "sobol")
-        if self.sequence not in SEQUENCES:
-            raise ValueError("qmc_lighttrace: sequence=%r must be one of %s" % (self.sequence, ", ".join(SEQUENCES)))
-        self.scramble = bool(props.get("scramble", True))
-        self.max_depth = _int(props, "max_depth", 6, 0)
-        self.samples = _int(props, "samples", 100000, 1)
-        self.epsilon = props.get("epsilon", None) if "epsilon" in props else None
-        if self.epsilon is not None and not float(self.epsilon) > 0:
-            raise ValueError("qmc_lighttrace: epsilon=%r must be > 0" % (self.epsilon,))
-        self.batch = _int(props, "batch", 1000, 1)
-        self.patience = _int(props, "patience", 2, 1)
-        self.max_samples = _int(props, "max_samples", 10000000, 1)
-        self.gather_samples = _int(props, "gather_samples", 16, 1)
-        self.share_neighbors = bool(props.get("share_neighbors", False))
-        self.mirror_depth = _int(props, "mirror_depth", 8, 0)
+        p = Params(props, "qmc_lighttrace")
+        self.sequence = p.choice("sequence", "sobol", SEQUENCES)
+        self.scramble = p.bool("scramble", True)
+        self.max_depth = p.int("max_depth", 6, lo=0)
+        self.samples = p.int("samples", 100000, lo=1)
+        self.epsilon = p.float("epsilon", None, lo=0, lo_open=True, note="optional: adaptive termination")
+        self.batch = p.int("batch", 1000, lo=1)
+        self.patience = p.int("patience", 2, lo=1)
+        self.max_samples = p.int("max_samples", 10000000, lo=1)
+        self.gather_samples = p.int("gather_samples", 16, lo=1)
+        self.share_neighbors = p.bool("share_neighbors", False)
+        self.mirror_depth = p.int("mirror_depth", 8, lo=0)
         dims = 2 * self.max_depth + 4
         if self.sequence in ("sobol", "halton", "faure") and dims > qmc.max_dim(self.sequence):
-            raise qmc.DimensionError("qmc_lighttrace: max_depth=%d needs %d dimensions; sequence '%s' has %d"
-                                     % (self.max_depth, dims, self.sequence, qmc.max_dim(self.sequence)))
+            raise p.conflict(("max_depth", "sequence"),
+                             "max_depth <= %d with sequence '%s': max_depth=%d needs %d dimensions; sequence '%s' "
+                             "has %d" % ((qmc.max_dim(self.sequence) - 4) // 2, self.sequence, self.max_depth, dims,
+                                         self.sequence, qmc.max_dim(self.sequence)))
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = None
         self.paths_used = 0
         self.delta_e_history = []

@@ -10,8 +10,9 @@ import numpy as np
 from mi_plugins import qmc
 from mi_plugins.meshtable import MeshTable
 from mi_plugins.sampling import direct_light, stratified_direction_sets
-from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param, choice_param,
-                                                      resolve_sensor, sensor_spp, image_to_film, camera_paths, SPLAT_MODE)
+from mi_plugins.integrators.stochastic_common import (Progress, check_variant, resolve_sensor, sensor_spp,
+                                                      image_to_film, camera_paths, SPLAT_MODE)
+from mi_plugins.params import Params
 
 DIRECTION_SEQUENCES = ("independent", "halton", "hammersley", "pi")
 ESTIMATES = ("gather", "patch")
@@ -257,26 +258,29 @@ class RayBundleIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props=mi.Properties()):
+        p = Params(props, "ray_bundle")
+        hide_emitters = p.bool("hide_emitters", False)   # before the base class reads it with its own check
         super().__init__(props)
-        who = "ray_bundle"
-        check_variant(who)
-        self.iterations = int_param(props, "iterations", 64, 1, None, who)
-        self.burn_in = int_param(props, "burn_in", min(8, self.iterations - 1), 0, self.iterations - 1, who)
-        self.resolution = int_param(props, "resolution", 128, 1, None, who)
-        self.chains = int_param(props, "chains", 1, 1, None, who)
-        self.bidirectional = bool_param(props, "bidirectional", True)
-        self.first_shot = bool_param(props, "first_shot", False)
-        self.estimate = choice_param(props, "estimate", "gather", ESTIMATES, who)
-        self.direction_sequence = choice_param(props, "direction_sequence", "independent", DIRECTION_SEQUENCES, who)
+        check_variant("ray_bundle")
+        self.iterations = p.int("iterations", 64, lo=1)
+        self.burn_in = p.int("burn_in", min(8, self.iterations - 1), lo=0)
+        if self.burn_in > self.iterations - 1:
+            raise p.conflict(("burn_in", "iterations"), "burn_in in 0 .. iterations - 1 = %d" % (self.iterations - 1))
+        self.resolution = p.int("resolution", 128, lo=1)
+        self.chains = p.int("chains", 1, lo=1)
+        self.bidirectional = p.bool("bidirectional", True)
+        self.first_shot = p.bool("first_shot", False)
+        self.estimate = p.choice("estimate", "gather", ESTIMATES)
+        self.direction_sequence = p.choice("direction_sequence", "independent", DIRECTION_SEQUENCES)
         independent = self.direction_sequence == "independent"
-        self.stratify_chains = bool_param(props, "stratify_chains", independent)
+        self.stratify_chains = p.bool("stratify_chains", independent)
         if self.stratify_chains and not independent:
-            raise ValueError("ray_bundle: stratify_chains=true needs direction_sequence='independent' (got %r): "
-                             "the other sequences give every chain its own sequence"
-                             % self.direction_sequence)
-        self.hide_emitters = bool_param(props, "hide_emitters", False)
-        self.average_diffuse = bool_param(props, "average_diffuse", False)
-        self.gather_nee = bool_param(props, "gather_nee", True)
+            raise p.conflict(("stratify_chains", "direction_sequence"),
+                             "stratify_chains=true needs direction_sequence='independent' (the other sequences "
+                             "give every chain its own sequence)")
+        self.hide_emitters = hide_emitters
+        self.average_diffuse = p.bool("average_diffuse", False)
+        self.gather_nee = p.bool("gather_nee", True)
         self.progress_callback = None
         self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
 

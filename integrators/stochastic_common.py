@@ -1,6 +1,6 @@
 """Helpers shared by the stochastic-iteration integrators (``stochastic_ray``,
-``ray_bundle``): parameter parsing with clear errors, sensor/spp resolution, the
-progress hook, and camera paths followed through delta surfaces.
+``ray_bundle``): variant check, sensor/spp resolution, the progress hook, and camera
+paths followed through delta surfaces (parameters: :mod:`mi_plugins.params`).
 
 Progress hook: an integrator instance has an attribute ``progress_callback`` (default
 None). When set, ``progress_callback(done, total)`` is called after every finished
@@ -25,30 +25,6 @@ def check_variant(who):
     if variant.startswith("scalar") or "rgb" not in variant or "polarized" in variant:
         raise RuntimeError("%s: variant '%s' is not supported: this integrator is vectorised with Dr.Jit; "
                            "use a JIT RGB (non-polarized) variant such as 'llvm_ad_rgb' or 'cuda_ad_rgb'" % (who, variant))
-
-
-def int_param(props, name, default, lo, hi, who):
-    value = props.get(name, default)
-    if isinstance(value, bool) or int(value) != value:
-        raise ValueError("%s: %s=%r must be an integer" % (who, name, value))
-    value = int(value)
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        rng = "%s .. %s" % (lo if lo is not None else "-inf", hi if hi is not None else "inf")
-        raise ValueError("%s: %s=%d is out of range; valid range: %s" % (who, name, value, rng))
-    if name == "max_depth" and value < -1:
-        raise ValueError("%s: max_depth=%d; valid values: -1 (unbounded) or >= 0" % (who, value))
-    return value
-
-
-def bool_param(props, name, default):
-    return bool(props.get(name, default))
-
-
-def choice_param(props, name, default, choices, who):
-    value = str(props.get(name, default))
-    if value not in choices:
-        raise ValueError("%s: %s='%s' is not valid; choose one of: %s" % (who, name, value, ", ".join(choices)))
-    return value
 
 
 def resolve_sensor(scene, sensor):

@@ -3,9 +3,9 @@
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins.integrators.stochastic_common import (Progress, check_variant, int_param, bool_param,
-                                                      resolve_sensor, sensor_spp, image_to_film,
-                                                      camera_paths, SPLAT_MODE)
+from mi_plugins.integrators.stochastic_common import (Progress, check_variant, resolve_sensor, sensor_spp,
+                                                      image_to_film, camera_paths, SPLAT_MODE)
+from mi_plugins.params import Params
 
 
 class StochasticRayIntegrator(mi.SamplingIntegrator):
@@ -50,12 +50,16 @@ class StochasticRayIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props=mi.Properties()):
+        p = Params(props, "stochastic_ray")
+        hide_emitters = p.bool("hide_emitters", False)   # before the base class reads it with its own check
         super().__init__(props)
         check_variant("stochastic_ray")
-        self.iterations = int_param(props, "iterations", 32, 1, None, "stochastic_ray")
-        self.burn_in = int_param(props, "burn_in", min(8, self.iterations - 1), 0, self.iterations - 1, "stochastic_ray")
-        self.max_depth = int_param(props, "max_depth", -1, -1, None, "stochastic_ray")
-        self.hide_emitters = bool_param(props, "hide_emitters", False)
+        self.iterations = p.int("iterations", 32, lo=1)
+        self.burn_in = p.int("burn_in", min(8, self.iterations - 1), lo=0)
+        if self.burn_in > self.iterations - 1:
+            raise p.conflict(("burn_in", "iterations"), "burn_in in 0 .. iterations - 1 = %d" % (self.iterations - 1))
+        self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
+        self.hide_emitters = hide_emitters
         self.progress_callback = None
         self.iterations_done, self.interrupted, self.averaged_fraction = 0, False, 0.0
 

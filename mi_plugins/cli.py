@@ -4,6 +4,7 @@ Also available as ``python -m mi_plugins``.
 """
 import argparse
 import os
+import re
 import sys
 import time
 
@@ -106,10 +107,21 @@ def main(argv=None):
     except Exception as e:  # one clear line instead of a traceback
         if os.environ.get("MI_PLUGINS_DEBUG"):
             raise
-        msg = str(e).strip().splitlines()
+        msg = _parameter_error(str(e)) or str(e).strip().splitlines()
         print("mi-plugins: error: %s" % (" ".join(m.strip() for m in msg) if msg else type(e).__name__),
               file=sys.stderr)
         return 2
+
+
+def _parameter_error(text):
+    """A plugin's ParameterError wrapped by Mitsuba's loader (with the Python traceback):
+    its message and the place in the scene file, or None."""
+    marker = "ParameterError: "
+    if marker not in text:
+        return None
+    where = re.search(r"At (.*?): failed to instantiate", text)
+    return [text[text.rindex(marker) + len(marker):].strip().splitlines()[0]
+            + (" (at %s)" % where.group(1) if where else "")]
 
 
 if __name__ == "__main__":

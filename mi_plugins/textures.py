@@ -1,27 +1,8 @@
-"""Reading texture-valued plugin parameters (float, RGB or any Mitsuba texture)."""
+"""Values of textures over their uv domain: the range checks of texture-valued plugin
+parameters (:meth:`mi_plugins.params.Params.texture`) and of rules between them."""
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
-
-def texture_param(props, name, default, plugin):
-    """Return a mi.Texture for parameter ``name`` (floats become uniform textures)."""
-    if name not in props:
-        value = default
-    else:
-        value = props.get(name)
-    if isinstance(value, mi.Texture):
-        return value
-    try:
-        v = float(value)
-        return mi.load_dict({"type": "uniform", "value": v})
-    except TypeError:
-        pass
-    try:
-        rgb = [float(c) for c in value]
-        return mi.load_dict({"type": "srgb", "color": rgb, "unbounded": True})
-    except TypeError:
-        raise ValueError("%s: parameter '%s'=%r must be a float, an RGB value or a texture" % (plugin, name, value))
 
 
 def _grid_values(texture, n=256):
@@ -42,6 +23,14 @@ def texture_max(texture):
 def texture_min(texture):
     """Smallest value (over channels and the uv domain) of a texture, as a float."""
     return float(np.min(np.array(_grid_values(texture))))
+
+
+def texture_range(texture):
+    """(smallest value, largest value, all values finite) of a texture over channels and
+    the uv domain (one scan of the uv grid; the largest value also from ``max()``)."""
+    values = np.array(_grid_values(texture))
+    finite = bool(np.all(np.isfinite(values)))
+    return float(np.min(values)), max(float(np.max(values)), texture_max(texture)), finite
 
 
 def texture_sum_max(*textures):

@@ -2,7 +2,8 @@
 
 Parameters as ``halton``: ``sample_count`` (int >= 1, default 4), ``scramble`` (bool,
 default true: per-pixel Cranley-Patterson rotation on top of Faure's deterministic
-permutations), ``seed``.
+permutations), ``seed`` (int, default 0: selects the randomisation together
+with the render seed).
 """
 from mi_plugins.samplers.halton import HaltonSampler
 

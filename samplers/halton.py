@@ -8,7 +8,7 @@
      - Default
      - Description
    * - sample_count
-     - int >= 1
+     - int, 1 .. 2^32 - 1
      - 4
      - samples per pixel (``mi.render(spp=...)`` overrides it)
    * - scramble
@@ -18,9 +18,10 @@
        per-pixel Cranley-Patterson rotation (independent randomisation per pixel); the
        permutations remove the correlations of plain Halton in high dimensions
    * - seed
-     - int
+     - int, 0 .. 2^32 - 1
      - 0
-     - base seed (``mi.render(seed=...)`` overrides it)
+     - selects the randomisation together with the render seed (``mi.render(seed=...)``):
+       another seed, other images; 0 = the render seed alone
 """
 from mi_plugins import qmc
 from mi_plugins.samplers.sequence_sampler import SequenceSampler

@@ -11,11 +11,18 @@ Decorrelation between pixels: each pixel gets its own randomisation of the seque
 rotation for Halton and Faure. With ``scramble=False`` all pixels use the same
 unrandomised points (deterministic, correlated across pixels: for studies only).
 Dimensions beyond the sequence's table fall back to hashed pseudo-random numbers.
+
+Parameters (all three samplers): ``sample_count`` (int >= 1, default 4; ``mi.render(spp=...)``
+overrides it), ``scramble`` (bool, default true), ``seed`` (int 0 .. 2^32 - 1, default 0):
+the render seed (``mi.render(seed=...)``) and this seed together select the
+randomisation, so scenes that differ only in the sampler's seed give different images
+for the same render seed; seed 0 gives the randomisation of the render seed alone.
 """
 import drjit as dr
 import mitsuba as mi
 
 from mi_plugins import qmc
+from mi_plugins.params import Params
 
 
 class SequenceSampler(mi.Sampler):
@@ -24,12 +31,13 @@ class SequenceSampler(mi.Sampler):
     max_dim = 0
 
     def __init__(self, props):
+        # read before the base class, which reads sample_count and seed with its own checks
+        p = Params(props, self.sequence)
+        p.int("sample_count", 4, lo=1, hi=0xFFFFFFFF)
+        sampler_seed = p.int("seed", 0, lo=0, hi=0xFFFFFFFF)
+        scramble = p.bool("scramble", True)
         super().__init__(props)
-        self.scramble = props.get("scramble", True)
-        if not isinstance(self.scramble, bool):
-            raise ValueError("%s: scramble=%r must be a boolean" % (self.sequence, self.scramble))
-        if self.sample_count() < 1:
-            raise ValueError("%s: sample_count=%d must be >= 1" % (self.sequence, self.sample_count()))
+        self.scramble, self.sampler_seed = scramble, sampler_seed
         self.base_seed = mi.UInt32(0)
         self.sample_index = mi.UInt32(0)
         self.pixel = mi.UInt32(0)
@@ -40,6 +48,7 @@ class SequenceSampler(mi.Sampler):
         props = mi.Properties(self.sequence)
         props["sample_count"] = int(self.sample_count())
         props["scramble"] = bool(self.scramble)
+        props["seed"] = int(self.sampler_seed)
         return props
 
     # ------------------------------------------------------------------ state
@@ -51,7 +60,11 @@ class SequenceSampler(mi.Sampler):
         self.pixel = lane // spp
         if isinstance(seed, int):
             seed &= 0xFFFFFFFF
-        self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3)
+        # the render seed and the sampler's `seed` parameter together (seed 0: as without it)
+        if self.sampler_seed == 0:
+            self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3)
+        else:
+            self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3, self.sampler_seed)
         self.dimension = dr.zeros(mi.UInt32, width)
         self.wavefront = width
 
@@ -102,5 +115,5 @@ class SequenceSampler(mi.Sampler):
         return mi.Point2f(x, y)
 
     def to_string(self):
-        return "%sSampler[sample_count=%d, scramble=%s]" % (self.sequence.capitalize(), self.sample_count(),
-                                                            self.scramble)
+        return "%sSampler[sample_count=%d, scramble=%s, seed=%d]" % (self.sequence.capitalize(), self.sample_count(),
+                                                                    self.scramble, self.sampler_seed)

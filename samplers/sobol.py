@@ -8,7 +8,7 @@
      - Default
      - Description
    * - sample_count
-     - int >= 1
+     - int, 1 .. 2^32 - 1
      - 4
      - samples per pixel (``mi.render(spp=...)`` overrides it)
    * - scramble
@@ -16,9 +16,10 @@
      - true
      - per-pixel hash-based Owen scrambling (independent randomisation per pixel)
    * - seed
-     - int
+     - int, 0 .. 2^32 - 1
      - 0
-     - base seed (``mi.render(seed=...)`` overrides it)
+     - selects the randomisation together with the render seed (``mi.render(seed=...)``):
+       another seed, other images; 0 = the render seed alone
 
 Use powers of two for ``sample_count``: the first 2^m Sobol points are a (t, m, s)-net.
 """

@@ -136,9 +136,11 @@ def test_phong_albedo_at_most_kd_plus_ks_and_sample_weights_agree(theta_deg, k):
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"diffuse_reflectance": 0.7, "specular_reflectance": 0.5}, "must be <= 1"),
-    ({"exponent": -1.0}, "exponent=-1.0 must be >= 0"),
-    ({"diffuse_reflectance": -0.1}, "must be >= 0"),
+    ({"diffuse_reflectance": 0.7, "specular_reflectance": 0.5},
+     r"phong: parameters diffuse_reflectance=0.7, specular_reflectance=0.5 are invalid together; valid range: "
+     r"diffuse_reflectance \+ specular_reflectance <= 1 in every channel"),
+    ({"exponent": -1.0}, r"phong: parameter exponent=-1.0 is invalid; valid range: a finite number >= 0"),
+    ({"diffuse_reflectance": -0.1}, r"phong: parameter diffuse_reflectance=-0.1 is invalid; valid range: .*>= 0"),
 ])
 def test_phong_bad_inputs(params, message):
     with pytest.raises(Exception, match=message):
@@ -584,8 +586,10 @@ def test_separable_simulated_normalization_has_the_predicted_jensen_bias():
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(target=1.0), "must exceed the maximum emission 1.5"),
-    (dict(normalization="mc"), "normalization='mc' must be one of"),
+    (dict(target=1.0), "separable: parameters target_radiance=1.0, emission=<DirectionalAreaEmitter id='lamp'> are "
+                       "invalid together; valid range: target_radiance must exceed the maximum emission 1.5"),
+    (dict(normalization="mc"), "separable: parameter normalization='mc' is invalid; valid range: one of 'exact', "
+                               "'simulated'"),
 ])
 def test_separable_bad_inputs(kwargs, message):
     with pytest.raises(Exception, match=message):
@@ -601,7 +605,9 @@ def test_separable_refuses_another_shapes_emitter():
                          optimize=False)
     _scenes.append(scene)
     bsdf = scene.shapes()[1].bsdf()
-    with pytest.raises(ValueError, match="must reference the emitter of the shape this BSDF sits on"):
+    with pytest.raises(ValueError, match="separable: parameter emission=<DirectionalAreaEmitter id='lamp_a'> is "
+                                         "invalid; valid range: a reference to the emitter of the shape this BSDF "
+                                         "sits on"):
         bsdf.eval(mi.BSDFContext(), _frame_si(1, [0, 0, 1]), mi.Vector3f(0, 0, 1))
     del bsdf, scene
 

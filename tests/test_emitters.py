@@ -138,10 +138,12 @@ def test_delta_bsdf_needs_the_bsdf_estimator():
 
 
 @pytest.mark.parametrize("params, message", [
-    ({}, "'target_radiance'.*required"),
-    ({"target_radiance": 0.0}, "target_radiance=.*must be > 0"),
-    ({"target_radiance": 1.0, "samples": 0}, "samples=0 must be an integer >= 1"),
-    ({"target_radiance": 1.0, "estimator": "importance"}, "estimator='importance' must be one of"),
+    ({}, r"simulated_area: parameter target_radiance=\(not given\) is invalid; valid range: .*\(required\)"),
+    ({"target_radiance": 0.0}, "simulated_area: parameter target_radiance=0.0 is invalid; valid range: .* > 0"),
+    ({"target_radiance": 1.0, "samples": 0}, "simulated_area: parameter samples=0 is invalid; valid range: an "
+                                             "integer >= 1"),
+    ({"target_radiance": 1.0, "estimator": "importance"}, "simulated_area: parameter estimator='importance' is "
+                                                          "invalid; valid range: one of 'uniform', 'cosine', 'bsdf'"),
 ])
 def test_bad_inputs(params, message):
     with pytest.raises(Exception, match=message):
@@ -220,12 +222,16 @@ def test_light_tracer_weights_integrate_to_the_power():
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"profile": "gauss"}, "profile='gauss' must be one of"),
-    ({"exponent": -2.0}, "exponent=-2.0 must be >= 0"),
-    ({"profile": "tabulated"}, "needs 'values'"),
-    ({"profile": "tabulated", "values": "1"}, "at least 2"),
-    ({"profile": "tabulated", "values": "1, -1"}, "at least 2 finite values >= 0"),
-    ({"radiance": -1.0}, "radiance must be >= 0"),
+    ({"profile": "gauss"}, "directional_area: parameter profile='gauss' is invalid; valid range: one of "
+                           "'cosine_power', 'tabulated'"),
+    ({"exponent": -2.0}, "directional_area: parameter exponent=-2.0 is invalid; valid range: a finite number >= 0"),
+    ({"profile": "tabulated"}, r"directional_area: parameters values=\(not given\), profile='tabulated' are invalid "
+                               "together; valid range: profile='tabulated' needs 'values'"),
+    ({"profile": "tabulated", "values": "1"}, "directional_area: parameter values='1' is invalid; valid range: a "
+                                              "string of at least 2 comma-separated finite numbers >= 0"),
+    ({"profile": "tabulated", "values": "1, -1"}, "parameter values='1, -1' is invalid; valid range: a string of at "
+                                                  "least 2 comma-separated finite numbers >= 0"),
+    ({"radiance": -1.0}, "directional_area: parameter radiance=-1.0 is invalid; valid range: .* >= 0"),
 ])
 def test_directional_bad_inputs(params, message):
     with pytest.raises(Exception, match=message):

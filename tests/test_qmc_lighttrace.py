@@ -1,13 +1,26 @@
 """Keller's `qmc_lighttrace` against the analytic cases.
 
+FINDING (test_light_sample_has_a_heavy_tail_at_emitting_edges): the eye-ray phase's
+light sample (one area sample of the emitters, no MIS) has an infinite-variance tail
+at points near an edge where two emitting faces meet (f Le G / pdf grows like 1/d^2
+with the distance d to the edge): in the Keller cube's own view single samples reach
+1000 L. Run means are then right-skewed, their spread is dominated by rare outliers,
+and the harness's Student-t checks lose both their level and their power: measured
+over 8000 runs of the Keller cube (16 runs x spp 256 per check), 10 % of the checks
+detect only more than 2 % (power rule) and 0.12 % fail (nominal 6.8e-6); 32 or 64 runs,
+or spp 4096, still leave 3-6 % above 2 %. The box scenes are therefore checked in a
+view of the middle of a face (FACE_VIEW: every visible point is at least 0.42 from an
+edge, single samples stay below 4.3 L; measured over 3200 runs: median tolerance
+0.33 % at spp 64, no check above 1.5 %, z centred). The light sample with a BSDF sample
+combined by MIS (mi_plugins.sampling.direct_light(..., bsdf_sample=...)) removes the
+tail: Keller cube, own view, spp 256: median tolerance 0.06 % instead of 0.87 %.
+
 Budgets: a render's cost is its particle phase (one kernel per bounce, almost
-independent of the number of paths), while the error of the image mean comes from the
-eye-ray phase (one light sample per eye ray, whose area sampling of the emitting walls
-is noisy and right-skewed near edges; the final gather of a furnace is nearly exact,
-and the particle phase's error of the image mean is small). So the checks use 16 runs,
-many eye rays (spp 256 at 16 x 16 pixels), 2 gather rays and 10000 particle paths:
-every passing check detects a relative error of the mean below 1 % (typically
-0.2-0.7 %).
+independent of the number of paths), the error of the image mean comes from the
+eye-ray phase (the final gather of a furnace is nearly exact, and the particle
+phase's error of the image mean is small). So the checks use 16 runs, spp 64-256 at
+16 x 16 pixels, 2 gather rays and 10000 particle paths: every passing check detects a
+relative error of the mean below 1 % (typically 0.2-0.7 %).
 """
 import mitsuba as mi
 import numpy as np
@@ -15,18 +28,32 @@ import pytest
 
 from mi_plugins import analytic, geometry, qmc
 from mi_plugins.analytic import harness, stats
-from mi_plugins.analytic.case import camera_for, rgb_dict
+from mi_plugins.analytic.case import rgb_dict
 from mi_plugins.analytic.cases import ConstantCase
 from mi_plugins.meshtable import NonMeshShapeError  # noqa: F401  (the error type of the refusal)
 
 import budget
 
 RES = 16
-SPP = 256
+SPP = 64
+#: large-M cases (not seen in FACE_VIEW)
+LARGE_SPP = 256
 RUNS = 16
 #: M = 29: truncation below 0.7^32 / 0.3 < 1e-4, stated as explicit bias (plus the case's own)
 LARGE_M = 29
 TRUNCATION_BIAS = 1e-4
+
+
+#: camera (origin, target, up) and fov of the middle of the face z = -1 of the box
+#: [-1, 1]^3: no edge in view (see the module docstring)
+FACE_VIEW = (([0.0, 0.0, 0.6], [0.0, 0.0, -1.0], [0, 1, 0]), 40.0)
+
+
+def face_view(case):
+    """``case`` (a box scene with constant exact radiance) seen in FACE_VIEW."""
+    assert case.exact_constant(-1) is not None
+    case.camera, case.fov = FACE_VIEW
+    return case
 
 
 def lighttrace(**kw):
@@ -47,10 +74,29 @@ def close_t(value, target, se, runs, slack=0.0, what="value"):
     budget.close(value, target, se * scale, slack=slack, what=what)
 
 
+def test_light_sample_has_a_heavy_tail_at_emitting_edges():
+    """FINDING (module docstring), measured magnitude: one eye ray per pixel, 512 x 512
+    pixels of the Keller cube (L = 1/2). In the case's own view, which shows edges
+    between emitting faces, the largest single samples reach ~1000 L (measured over 2M
+    samples: P(> 10 L) = 5.6e-4, P(> 30 L) = 8.8e-5: ~23 samples above 30 L expected among
+    these 262144); in FACE_VIEW no sample can exceed Le + a/pi Le A max(G) + a max(L_k)
+    = 4.3 L (every visible point is >= 0.42 from an edge; measured max 4.3 L)."""
+    L = 0.5
+    peaks = {}
+    for name, view in (("own", None), ("face", FACE_VIEW)):
+        case = analytic.keller_cube(resolution=512)
+        if view:
+            case.camera, case.fov = view
+        scene = case.scene(lighttrace())
+        peaks[name] = float(np.array(mi.render(scene, spp=1, seed=budget.seed(21))).max()) / L
+    assert peaks["own"] > 30, peaks
+    assert peaks["face"] < 5, peaks
+
+
 @pytest.mark.parametrize("sequence", ["sobol", "halton", "faure", "lcg", "independent"])
 def test_keller_cube_exact_truncated_value(sequence):
     """M = 6: the image holds paths of up to M + 3 = 9 segments (Mitsuba max_depth 9)."""
-    case = analytic.keller_cube(resolution=RES)
+    case = face_view(analytic.keller_cube(resolution=RES))
     res = analytic.check(case, lighttrace(sequence=sequence), spp=SPP, runs=RUNS, max_depth=9)
     assert res.passed, res
 
@@ -59,7 +105,7 @@ def test_keller_cube_exact_truncated_value(sequence):
                                        "sierpinski_diffuse_simulated"])
 def test_cases_with_large_m(case_name):
     case = analytic.cases()[case_name](resolution=RES)
-    res = analytic.check(case, lighttrace(max_depth=LARGE_M), spp=SPP, runs=RUNS, max_depth=-1,
+    res = analytic.check(case, lighttrace(max_depth=LARGE_M), spp=LARGE_SPP, runs=RUNS, max_depth=-1,
                          bias=TRUNCATION_BIAS + case.known_bias)
     assert res.passed, res
 
@@ -67,7 +113,7 @@ def test_cases_with_large_m(case_name):
 def test_truncation_is_visible_when_checked_against_the_untruncated_value():
     """M = 1 (paths of up to 4 segments) on a furnace with a = 0.7, Le = 0.3: the renders
     pass against the depth-4 value 0.76 and fail the unbounded 1 by its 24 % deficit."""
-    case = analytic.furnace(albedo=0.7, emission=0.3, geometry="box", resolution=RES)
+    case = face_view(analytic.furnace(albedo=0.7, emission=0.3, geometry="box", resolution=RES))
     images = render_runs(case.scene(lighttrace(max_depth=1)), SPP, seed=0)
     ok = harness.compare(images, case.expected(4))
     assert ok["passed"], ok["failures"]
@@ -102,7 +148,7 @@ def test_adaptive_termination_stops_earlier_for_larger_epsilon():
 def test_max_samples_bounds_the_adaptive_loop():
     """With an epsilon no batch reaches, the adaptive loop stops at exactly max_samples
     (batches of 5000, the last one cut to 2500), and the image still passes."""
-    case = analytic.keller_cube(resolution=RES)
+    case = face_view(analytic.keller_cube(resolution=RES))
     scene = case.scene(lighttrace(epsilon=1e-12, batch=5000, max_samples=12500))
     images = render_runs(scene, SPP, seed=4)
     integrator = scene.integrator()
@@ -119,7 +165,7 @@ def test_scramble_false_is_deterministic_and_passes():
     seeds differ by ~3e-3). Its QMC error is then shared by all runs; measured: RMS error
     of the 12 triangle radiances 3.2e-3 (max 5.7e-3) at 10000 paths, like the scrambled
     1.9e-3 .. 4.2e-3; the check (whose runs differ in the eye-ray phase only) passes."""
-    case = analytic.keller_cube(resolution=RES)
+    case = face_view(analytic.keller_cube(resolution=RES))
     exact_triangle = 0.25 * (2 - 2.0 ** -7)          # Le * sum_{k <= M + 1} a^k, M = 6
     scene = case.scene(lighttrace(scramble=False))
     integrator = scene.integrator()
@@ -145,7 +191,7 @@ def share_renders(block, runs=RUNS):
     """Bekaert box (M = 29, 1 gather ray): ``runs`` renders without and with
     share_neighbors, run j of both with the same seed (common random numbers: the
     direct light, which dominates the error, is the same in both)."""
-    case = analytic.bekaert("box", resolution=RES)
+    case = face_view(analytic.bekaert("box", resolution=RES))
     images = {}
     for share in (False, True):
         scene = case.scene(lighttrace(max_depth=LARGE_M, gather_samples=1, share_neighbors=share))
@@ -185,7 +231,7 @@ def test_wrong_images_fail():
     structure test against the mirrored image and an image with a 25 % too high
     contrast (both with the right mean), by the slope the exact image predicts."""
     case = analytic.diffuse_sphere(0.5, geometry="sphere_mesh", resolution=RES)
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M)), SPP, seed=7)
+    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M)), LARGE_SPP, seed=7)
     exact = case.expected(-1)
     bias = case.known_bias + TRUNCATION_BIAS
     ok = harness.compare(images, exact, bias=bias)
@@ -212,10 +258,16 @@ MIRROR_TRIANGLES = (0, 1)
 MIRROR_FACE = np.array([[-1, -1, -1], [-1, 1, -1], [-1, 1, 1], [-1, -1, 1]], dtype=np.float64)
 
 
+#: camera and fov looking at the edge between the mirror and the floor: half of the view
+#: is the mirror; no edge between two emitting faces is seen, directly (>= 0.47 away) or
+#: in the mirror (>= 0.28 away), so the light sample has no heavy tail (module docstring)
+MIRROR_VIEW = (([0.4, 0.4, 0.0], [-1.0, -1.0, 0.0], [0, 1, 0]), 30.0)
+
+
 def mirror_box(albedo=0.5, emission=0.5, resolution=RES):
     """Closed mesh box furnace (diffuse albedo a, area emission Le) whose face x = -1 is
     a non-emitting perfect mirror: the radiance stays Le / (1 - a) everywhere (the mirror
-    reflects the uniform field)."""
+    reflects the uniform field). Seen in MIRROR_VIEW."""
     mesh = geometry.box()
     mirror = np.zeros(mesh.face_count, dtype=bool)
     mirror[list(MIRROR_TRIANGLES)] = True
@@ -227,8 +279,9 @@ def mirror_box(albedo=0.5, emission=0.5, resolution=RES):
     face = geometry.mesh_shape(mesh.subset(mirror), "box_face_x0")
     face["bsdf"] = {"type": "conductor", "material": "none", "specular_reflectance": rgb_dict(1.0)}
     value = emission / (1.0 - albedo)
-    return ConstantCase("mirror_box", {"walls": walls, "mirror": face}, camera_for("box"),
-                        lambda d: np.full(3, value), truncation_exact=False, resolution=resolution,
+    camera, fov = MIRROR_VIEW
+    return ConstantCase("mirror_box", {"walls": walls, "mirror": face}, camera, lambda d: np.full(3, value),
+                        truncation_exact=False, resolution=resolution, fov=fov,
                         params=dict(albedo=albedo, emission=emission))
 
 
@@ -295,13 +348,13 @@ def test_mirror_depth_follows_the_mirror_but_the_gather_misses_light_via_mirrors
     reads the mirror triangle's stored radiance, which is 0 (a delta BSDF has no diffuse
     reflectance, so particles deposit nothing there). A diffuse point then shows
     L - a L F(x) instead of L, F(x) = its form factor to the mirror. The renders match
-    that value exactly (per pixel), and fail the exact L = 1 by 12.4 % (mean of a L F).
+    that value exactly (per pixel), and fail the exact L = 1 by 17.7 % (mean of a L F).
     A fix: gather rays that hit a delta surface should follow it (up to mirror_depth) and
     read the full radiance (emission + reflected) of the triangle they reach, since the
     light sample cannot reach emitters through mirrors."""
     case = mirror_box()
     a, L = 0.5, 1.0
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M, mirror_depth=1)), SPP, seed=12)
+    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M, mirror_depth=1)), 2 * SPP, seed=12)
     fraction, seen_ff, _ = mirror_box_images(case)
     exact = case.expected(-1)
     finding = exact - a * L * seen_ff
@@ -310,10 +363,10 @@ def test_mirror_depth_follows_the_mirror_but_the_gather_misses_light_via_mirrors
     bad = harness.compare(images, exact, bias=TRUNCATION_BIAS)
     assert not bad["passed"] and bad["z"] < -20, (bad["z"], bad["failures"])
     missing = a * L * float(seen_ff.mean())
-    assert 0.10 < missing < 0.15, missing                    # 0.124: the size of the finding
+    assert 0.15 < missing < 0.20, missing                    # 0.177: the size of the finding
     close_t(bad["expected_mean"] - bad["mean"], missing, bad["se"], bad["runs"], slack=TRUNCATION_BIAS,
             what="light missing via the mirror")
-    assert 0.25 < fraction.mean() < 0.35                     # the mirror is well in view (0.30)
+    assert 0.45 < fraction.mean() < 0.55                     # the mirror is half of the view
 
 
 def test_mirror_depth_zero_stops_eye_rays_at_the_mirror():

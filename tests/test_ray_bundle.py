@@ -1,16 +1,50 @@
-"""Tests of the `ray_bundle` integrator (stochastic iteration with global ray bundles)."""
+"""Tests of the `ray_bundle` integrator (stochastic iteration with global ray bundles).
+
+Budgets (tests/budget.py, power rule): the analytic checks run many chains in lockstep
+(``rb()``: 32-64 chains, bundles of 16 x 16 lines, burn-in 8 plus a few averaged
+iterations, 16-32 runs) and reach a relative tolerance of 0.5-1.8 %. The paper's
+one-chain settings (``PAPER``) are kept where the test is about them: Hammersley
+directions (fig. 7) and the 1/sqrt(iterations) law of one chain.
+
+Burn-in: the image of an iteration misses the bounces beyond it, a bias that decays
+like the scene's albedo to the power of the burn-in. Measured (64 chains, 32 runs, mean
+relative error at burn-in 4 / 8 / 16): furnace box -0.17 / +0.07 / +0.11 % (+-0.1 %),
+Bekaert box and Sierpinski within +-0.08 % at every burn-in, the Phong cases within
++-0.2 %, constant_lightsource_box -5.7 / -1.0 / -0.14 % (+-0.3 %): burn-in 8, 16 for the
+Bekaert and Phong cases, 24 for the light-source box. constant_lightsource_sierpinski
+(its non-emitting surfaces reflect everything) needs about 72: -19 / -4.4 / -1.7 / -0.4 %
+at burn-in 8 / 24 / 40 / 56.
+"""
+import functools
+from unittest import mock
+
 import numpy as np
 import pytest
 
 import mitsuba as mi
-import mi_plugins
 from mi_plugins import analytic
+from mi_plugins.analytic import harness
 from mi_plugins.meshtable import NonMeshShapeError
 
+import budget
 from conftest import furnace_rmse, scalar_variant_refusal
 
 RES = 16
-BASE = {"type": "ray_bundle", "iterations": 64, "resolution": 48}
+#: the paper's algorithm: one chain, bundles of 48 x 48 lines
+PAPER = {"type": "ray_bundle", "iterations": 64, "resolution": 48}
+
+
+def rb(chains=32, averaged=8, burn_in=8, resolution=16, **extra):
+    """A ray_bundle dict with ``chains`` chains in lockstep, ``burn_in`` + ``averaged``
+    iterations."""
+    return dict({"type": "ray_bundle", "chains": chains, "iterations": burn_in + averaged, "burn_in": burn_in,
+                 "resolution": resolution}, **extra)
+
+
+def check(name, cfg, runs=16, res=RES, seed=2, **kw):
+    case = analytic.cases()[name](resolution=res)
+    return analytic.check(case, cfg, spp=1, runs=runs, seed=seed, bias=case.known_bias, **kw)
+
 
 # Discretisation: ray_bundle keeps one radiance value per triangle. In the furnace and
 # constant-radiance cases the exact radiance is constant, so the patch average is exact
@@ -18,101 +52,155 @@ BASE = {"type": "ray_bundle", "iterations": 64, "resolution": 48}
 # for every receiving point (dA_j / (4 pi R^2)), so replacing the radiance of a patch by
 # its average does not change the irradiance anywhere: the only tolerance left is the
 # mesh-versus-sphere difference that the case itself documents (case.known_bias).
+# (case, integrator, runs, image resolution); the glossy cases (Phong lobes, directional
+# emitters) have the heaviest noise: 64 chains, 32 runs of an 8 x 8 image (pixels do not
+# matter for a constant exact image).
 CASES = [
-    ("furnace_box", {}),
-    ("furnace_sphere_mesh", {}),
-    ("furnace_sierpinski", {}),
-    ("bekaert_box", {}),
-    ("bekaert_sierpinski", {}),
-    ("diffuse_sphere_mesh", {}),
-    ("constant_brdf_phong_box", {"burn_in": 24}),
-    ("sierpinski_phong_simulated", {"burn_in": 24}),
-    ("sierpinski_diffuse_exact", {"burn_in": 24}),
-    ("sierpinski_diffuse_simulated", {"burn_in": 24}),
-    ("constant_lightsource_box", {"burn_in": 24}),
-    ("constant_lightsource_sierpinski", {"burn_in": 24}),
+    ("furnace_box", rb(64), 16, RES),
+    ("furnace_sphere_mesh", rb(32), 16, RES),
+    ("furnace_sierpinski", rb(64), 16, RES),
+    ("bekaert_box", rb(32, burn_in=16), 16, RES),
+    ("bekaert_sierpinski", rb(32, burn_in=16), 16, RES),
+    ("diffuse_sphere_mesh", rb(32), 16, RES),
+    ("constant_brdf_phong_box", rb(64, burn_in=16), 32, 8),
+    ("sierpinski_phong_simulated", rb(64, burn_in=16), 32, 8),
+    ("sierpinski_diffuse_exact", rb(64), 16, RES),
+    ("sierpinski_diffuse_simulated", rb(64), 16, RES),
+    ("constant_lightsource_box", rb(64, averaged=16, burn_in=24), 32, 8),
 ]
+CONFIG = {name: cfg for name, cfg, _, _ in CASES}
 
 
-def integrator(**kw):
-    return dict(BASE, **kw)
+@pytest.mark.parametrize("name,cfg,runs,res", CASES, ids=[c[0] for c in CASES])
+def test_analytic_cases(name, cfg, runs, res):
+    out = check(name, cfg, runs, res)
+    assert out.passed, out
 
 
-@pytest.mark.parametrize("name,extra", CASES, ids=[c[0] for c in CASES])
-def test_analytic_cases(name, extra):
-    case = analytic.cases()[name](resolution=RES)
-    res = analytic.check(case, integrator(**extra), spp=1, runs=6, seed=2, bias=case.known_bias)
+# constant_lightsource_sierpinski: its non-emitting surfaces reflect everything (burn-in
+# about 72) and the directional emitters' lobes make the chains' radiance very noisy:
+# measured relative tolerance 2.6 % (128 chains, 72 + 16 iterations, 32 runs, 20 s CPU),
+# 2.3 % (256 chains, 64 + 16, 32 runs, 28 s), 2.5 % (64 chains, 72 + 96, 32 runs, 35 s),
+# 2.1 % (32 chains, 72 + 128, 32 runs, 42 s); per-run SD 4.1 % at 64 chains, 64 + 16
+# iterations (128 runs, not heavy-tailed: skewness 0.24, excess kurtosis -0.04). It runs
+# only under a documented exception of tests/budget.py (EXCEPTIONS).
+LIGHTSOURCE_SIERPINSKI = [rb(128, averaged=16, burn_in=72),
+                          rb(128, averaged=16, burn_in=72, average_diffuse=True, first_shot=True, gather_nee=False)]
+
+
+@pytest.mark.parametrize("cfg", LIGHTSOURCE_SIERPINSKI, ids=["plain", "average-fs-no_nee"])
+def test_lightsource_sierpinski(request, cfg):
+    limit, reason = budget.limit_for(request.node.nodeid)
+    if reason is None:
+        pytest.skip("constant_lightsource_sierpinski cannot reach the power rule's 2 %% at a sane cost "
+                    "(2.1-2.6 %% at 20-42 s CPU); runs once tests/budget.py EXCEPTIONS documents it")
+    res = check("constant_lightsource_sierpinski", cfg, 32, 8)
     assert res.passed, res
 
 
 @pytest.mark.parametrize("extra", [{"estimate": "patch"}, {"bidirectional": False},
                                    {"direction_sequence": "pi"},
-                                   {"chains": 8, "iterations": 16, "estimate": "patch"},
-                                   {"chains": 8, "iterations": 16, "bidirectional": False},
-                                   {"first_shot": True, "estimate": "patch"}])
+                                   {"stratify_chains": False, "estimate": "patch"},
+                                   {"stratify_chains": False, "bidirectional": False},
+                                   {"first_shot": True, "estimate": "patch"}],
+                         ids=["patch", "one_way", "pi", "independent-patch", "independent-one_way", "first_shot-patch"])
 def test_variants_pass_the_furnace(extra):
-    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    res = analytic.check(case, integrator(**extra), spp=1, runs=6, seed=4)
+    res = check("furnace_box", rb(64, **extra), seed=4)
     assert res.passed, res
 
 
 def test_hammersley_directions_are_wrong_independent_are_right():
-    """Paper figure 7: the 1-uniform Hammersley sequence of global directions gives a
-    clearly wrong mean; independent random directions pass the same check."""
-    case = analytic.bekaert("box", resolution=RES)
-    good = analytic.check(case, integrator(direction_sequence="independent"), spp=1, runs=6, seed=5)
-    bad = analytic.check(case, integrator(direction_sequence="hammersley"), spp=1, runs=6, seed=5)
+    """Paper figure 7, the paper's settings (one chain, 48 x 48 lines): the 1-uniform
+    Hammersley sequence of global directions gives a clearly wrong mean; independent
+    random directions pass the same check."""
+    good = check("bekaert_box", dict(PAPER, direction_sequence="independent"), 32, 8, seed=5)
+    bad = check("bekaert_box", dict(PAPER, direction_sequence="hammersley"), 16, 8, seed=5)
     assert good.passed, good
     assert not bad.passed and abs(bad.z) > 8, bad
 
 
-def _rmse(iterations, seeds, chains=1, **extra):
-    return furnace_rmse(integrator(iterations=iterations + 8, burn_in=8, chains=chains, **extra), seeds, RES)
+# ------------------------------------------------------------------ ratio statistics: chains
+#: seeds per RMSE of the chain statistics (one render each). The furnace Sierpinski scene
+#: (76 triangles): its per-image error has more independent parts than the box's 12
+#: triangles, so the RMSE over a few seeds is steadier (log-SD of the ratio 0.12 against
+#: 0.21 for the box at 8 seeds, same cost)
+LAW_SEEDS = 24
+
+
+@functools.lru_cache(maxsize=None)
+def _chain_rmses(block):
+    """RMSE (furnace Sierpinski, 8 x 8 pixels, LAW_SEEDS renders each, own seeds) of one
+    chain with 16 averaged iterations, of one chain with 64, and of 4 independent
+    chains (stratify_chains=false) with 16: the paper's settings otherwise."""
+    seeds = lambda k: [budget.block_seed(block, 1000 * k + j) for j in range(LAW_SEEDS)]
+    rmse = lambda cfg, k: furnace_rmse(dict(PAPER, burn_in=8, **cfg), seeds(k), 8, "sierpinski")
+    one = rmse({"iterations": 24}, 0)
+    long = rmse({"iterations": 72}, 1)
+    four = rmse({"iterations": 24, "chains": 4, "stratify_chains": False}, 2)
+    return one, long, four
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_iterations")
+def rmse_ratio_iterations(block):
+    """One chain: RMSE with 16 averaged iterations over the RMSE with 64 (1/sqrt: 2)."""
+    one, long, four = _chain_rmses(block)
+    return one / long
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_chains")
+def rmse_ratio_chains(block):
+    """RMSE of one chain over that of 4 independent chains, same iterations (2)."""
+    one, long, four = _chain_rmses(block)
+    return one / four
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_long_chain")
+def rmse_ratio_long_chain(block):
+    """RMSE of one chain with 4x the iterations over that of 4 chains (1, or more
+    where the one chain's iterations are autocorrelated)."""
+    one, long, four = _chain_rmses(block)
+    return long / four
 
 
 def test_error_shrinks_like_inverse_sqrt_of_iterations():
-    """4x the averaged iterations halve the RMSE (one chain, 16 seeds per budget: the
-    ratio measured 1.75-2.27 over eight seed blocks; 6 seeds gave 1.38-3.03)."""
-    small, large = _rmse(16, range(16)), _rmse(64, range(100, 116))
-    ratio = small / large          # 4x the averaged iterations: expected ratio 2
-    assert 1.4 < ratio < 2.8, (small, large, ratio)
+    """One chain (the paper's algorithm): 4x the averaged iterations halve the RMSE.
+    A ratio of 1 (iterations not averaged) or 4 (1/iterations) is outside the bounds."""
+    budget.ratio("ray_bundle.rmse_ratio_iterations", rmse_ratio_iterations(0), 1.3, 3.1)
 
 
 def test_chains_are_independent_and_averaged():
     """4 independent chains in lockstep (stratify_chains=false): the error halves against
-    one chain of the same iterations (measured over 12 seed blocks: ratio 1.6-2.9), and
-    equals that of one chain with 4x the iterations (0.8-1.3; chains have no
-    autocorrelation between them, so never worse). Chains sharing their directions give
-    1.25 here (fails). The mean stays exact (also with the default stratified chains)."""
-    one = _rmse(16, range(200, 212))
-    four = _rmse(16, range(300, 312), chains=4, stratify_chains=False)
-    long = _rmse(64, range(400, 412))
-    assert 1.4 < one / four < 4.0, (one, four)
-    assert 0.6 < long / four < 1.7, (long, four)
-    case = analytic.bekaert("sierpinski", resolution=RES)
-    res = analytic.check(case, integrator(chains=4, iterations=24), spp=1, runs=6, seed=7)
+    one chain of the same iterations, and equals that of one chain with 4x the
+    iterations (chains have no autocorrelation between them, so never worse). Chains
+    sharing their directions give 1.25 for the first ratio: excluded by its lower
+    bound. The mean stays exact with independent chains (the stratified default is
+    checked by test_analytic_cases)."""
+    budget.ratio("ray_bundle.rmse_ratio_chains", rmse_ratio_chains(0), 1.3, 3.1)
+    budget.ratio("ray_bundle.rmse_ratio_long_chain", rmse_ratio_long_chain(0), 0.6, 1.7)
+    res = check("bekaert_sierpinski", rb(32, burn_in=16, stratify_chains=False), seed=7)
     assert res.passed, res
 
 
 # stratify_chains: one evenly spread direction set per iteration, dealt to the chains
 def _direction_sets(shuffle=True, chains=8, count=4000, antipodal=True):
     from mi_plugins.sampling import stratified_direction_sets
-    return stratified_direction_sets(count, chains, np.random.default_rng(3), antipodal, shuffle)
+    return stratified_direction_sets(count, chains, budget.rng(3), antipodal, shuffle)
 
 
 @pytest.mark.parametrize("antipodal", [True, False])
 def test_stratified_direction_sets_are_uniform_and_independent_per_chain(antipodal):
     """Every chain's directions are uniform (mean 0, E[z^2] = 1/3) and consecutive ones
-    independent (E[w_m . w_m+1] = 0, E[(w_m . w_m+1)^2] = 1/3): 8 chains x 4000
-    iterations, each moment within 4 standard errors of its exact value."""
-    w = _direction_sets(antipodal=antipodal)
+    independent (E[w_m . w_m+1] = 0, E[(w_m . w_m+1)^2] = 1/3): 4 chains x 4000
+    iterations, each moment within z = 5 standard errors of its exact value (60 values
+    per case: z 5 keeps their false-failure share at 3e-5)."""
+    w = _direction_sets(antipodal=antipodal, chains=4)
     n = w.shape[0]
     se_mean, se_square = np.sqrt(1 / 3 / n), np.sqrt(4 / 45 / n)   # Var(w_x) = 1/3, Var(w_x^2) = 4/45
-    assert np.all(np.abs(w.mean(axis=0)) < 4 * se_mean)
-    assert np.all(np.abs((w ** 2).mean(axis=0) - 1 / 3) < 4 * se_square)
+    budget.close(w.mean(axis=0), 0.0, se_mean, z=5.0, what="mean direction")
+    budget.close((w ** 2).mean(axis=0), 1 / 3, se_square, z=5.0, what="E[w_x^2]")
     t = np.sum(w[1:] * w[:-1], axis=-1)
-    assert np.all(np.abs(t.mean(axis=0)) < 4 * se_mean)
-    assert np.all(np.abs((t ** 2).mean(axis=0) - 1 / 3) < 4 * se_square)
+    budget.close(t.mean(axis=0), 0.0, se_mean, z=5.0, what="E[w_m . w_m+1]")
+    budget.close((t ** 2).mean(axis=0), 1 / 3, se_square, z=5.0, what="E[(w_m . w_m+1)^2]")
 
 
 def test_stratified_direction_sets_cover_the_sphere_and_are_reshuffled():
@@ -121,10 +209,11 @@ def test_stratified_direction_sets_cover_the_sphere_and_are_reshuffled():
     of every iteration decouples the chains: the chain-averaged w_m . w_m+1 spreads like
     an average of independent pairs (variance about 1/(3 chains)); the test of the test:
     without the shuffle every chain turns by the same relative rotation Q and the
-    average spreads like tr(Q)/3 (variance 1/9). Measured: 0.049 and 0.112."""
+    average spreads like tr(Q)/3 (variance 1/9). Measured: 0.049 and 0.112 (4000
+    iterations: each variance has a relative SD of about 3 %, the bounds are 2x away)."""
     chains = 8
     w = _direction_sets(chains=chains)
-    axes = np.random.default_rng(4).normal(size=(w.shape[0], 1, 3))
+    axes = budget.rng(4).normal(size=(w.shape[0], 1, 3))
     axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
     spread = np.std(np.abs(np.sum(axes * w, axis=-1)).mean(axis=1))
     independent_spread = np.sqrt(1 / 12 / chains)                 # Var|a . w| = 1/12
@@ -135,46 +224,80 @@ def test_stratified_direction_sets_cover_the_sphere_and_are_reshuffled():
     assert fixed > 1 / 18, fixed
 
 
-def test_stratified_chains_lower_the_error(monkeypatch):
-    """Furnace sphere mesh, first shot, 64 chains, 8 seeds: stratified chains lower the
-    RMSE against independent chains (measured 1.35-1.39 over three seed blocks); the
-    test of the test: stratified sets dealt in a fixed order (every chain turned by
-    the same random rotation between iterations) lose most of the gain (measured RMSE
-    1.27-1.29x that of the shuffled sets)."""
-    import functools
+@functools.lru_cache(maxsize=None)
+def _stratified_rmses(block, chains, seeds):
+    """RMSE (furnace box, 8 x 8 pixels, the same ``seeds`` seeds for all three) of
+    independent chains, of stratified chains, and of stratified sets dealt in a fixed
+    order (the shuffle patched out with unittest.mock)."""
     from mi_plugins import sampling
     import mi_plugins.integrators.ray_bundle as ray_bundle_module
-    cfg = integrator(iterations=24, burn_in=8, resolution=32, chains=64, first_shot=True)
-    rmse = lambda **kw: furnace_rmse(dict(cfg, **kw), range(8), RES, "sphere_mesh")
+    seeds = [budget.block_seed(block, j) for j in range(seeds)]
+    rmse = lambda **kw: furnace_rmse(rb(chains, **kw), seeds, 8)
     independent, stratified = rmse(stratify_chains=False), rmse()
-    monkeypatch.setattr(ray_bundle_module, "stratified_direction_sets",
-                        functools.partial(sampling.stratified_direction_sets, shuffle=False))
-    fixed_order = rmse()
-    assert independent / stratified > 1.15, (independent, stratified)
-    assert fixed_order / stratified > 1.15, (fixed_order, stratified)
+    with mock.patch.object(ray_bundle_module, "stratified_direction_sets",
+                           functools.partial(sampling.stratified_direction_sets, shuffle=False)):
+        fixed_order = rmse()
+    return independent, stratified, fixed_order
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_stratified")
+def rmse_ratio_stratified(block):
+    """Furnace box, 16 chains, 32 seeds: RMSE of independent over stratified chains."""
+    independent, stratified, fixed_order = _stratified_rmses(block, 16, 32)
+    return independent / stratified
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_fixed_order")
+def rmse_ratio_fixed_order(block):
+    """Furnace box, 256 chains, 16 seeds: RMSE of stratified sets dealt in a fixed order
+    over that of the shuffled ones (the more chains, the more a common rotation costs)."""
+    independent, stratified, fixed_order = _stratified_rmses(block, 256, 16)
+    return fixed_order / stratified
+
+
+def test_stratified_chains_lower_the_error():
+    """Furnace box: stratified chains lower the RMSE against independent chains; the test
+    of the test: stratified sets dealt in a fixed order (every chain turned by the same
+    random rotation between iterations) correlate the chains and lose the gain (worse
+    than independent chains)."""
+    budget.ratio("ray_bundle.rmse_ratio_stratified", rmse_ratio_stratified(0), 1.15, None)
+    budget.ratio("ray_bundle.rmse_ratio_fixed_order", rmse_ratio_fixed_order(0), 1.1, None)
 
 
 # first_shot: direct light by next-event estimation, bundles carry reflected radiance only
-FIRST_SHOT_CASES = ["furnace_box", "furnace_sphere_mesh", "bekaert_sierpinski", "diffuse_sphere_mesh",
-                    "constant_brdf_phong_box", "sierpinski_diffuse_simulated", "constant_lightsource_box"]
+FIRST_SHOT_CASES = [
+    ("furnace_box", rb(32), 16, RES),
+    ("furnace_sphere_mesh", rb(8, averaged=16), 16, RES),
+    ("bekaert_sierpinski", rb(16, burn_in=16), 16, RES),
+    ("diffuse_sphere_mesh", rb(8, averaged=16), 16, RES),
+    ("constant_brdf_phong_box", rb(32, burn_in=16), 32, 8),
+    ("sierpinski_diffuse_simulated", rb(16), 16, RES),
+    ("constant_lightsource_box", rb(64, averaged=16, burn_in=24), 32, 8),
+]
 
 
-@pytest.mark.parametrize("name", FIRST_SHOT_CASES)
-def test_first_shot_analytic_cases(name):
-    extra = dict(CASES)[name]
-    case = analytic.cases()[name](resolution=RES)
-    res = analytic.check(case, integrator(first_shot=True, **extra), spp=1, runs=6, seed=2, bias=case.known_bias)
-    assert res.passed, res
+@pytest.mark.parametrize("name,cfg,runs,res", FIRST_SHOT_CASES, ids=[c[0] for c in FIRST_SHOT_CASES])
+def test_first_shot_analytic_cases(name, cfg, runs, res):
+    out = check(name, dict(cfg, first_shot=True), runs, res)
+    assert out.passed, out
+
+
+@budget.ratio_statistic("ray_bundle.rmse_ratio_first_shot")
+def rmse_ratio_first_shot(block):
+    """Same iterations, furnace sphere mesh (4 chains, 4 seeds): RMSE without over with
+    the first shot."""
+    cfg = rb(4, averaged=32)
+    seeds = [budget.block_seed(block, j) for j in range(4)]
+    plain = furnace_rmse(cfg, seeds, RES, "sphere_mesh")
+    shot = furnace_rmse(dict(cfg, first_shot=True), seeds, RES, "sphere_mesh")
+    return plain / shot
 
 
 def test_first_shot_halves_the_error():
-    """Same iterations, furnace sphere mesh (4 chains, 8 seeds): the light sample (with
-    MIS) replaces the random-direction estimate of the direct light; measured RMSE ratio
-    2.0 (furnace sphere mesh), 1.7 (diffuse sphere), 1.8 (Sierpinski)."""
-    cfg = integrator(iterations=40, burn_in=8, chains=4)
-    plain = furnace_rmse(cfg, range(8), RES, "sphere_mesh")
-    shot = furnace_rmse(dict(cfg, first_shot=True), range(8), RES, "sphere_mesh")
-    assert plain / shot > 1.4, (plain, shot)
+    """Same iterations, furnace sphere mesh: the light sample (with MIS) replaces the
+    random-direction estimate of the direct light; measured RMSE ratio 2.0 (furnace
+    sphere mesh), 1.7 (diffuse sphere), 1.8 (Sierpinski)."""
+    budget.ratio("ray_bundle.rmse_ratio_first_shot", rmse_ratio_first_shot(0), 1.4, None)
 
 
 def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
@@ -186,9 +309,42 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
     def doubled(self, scene, si, rng):
         return source(self, scene, si, rng) + mi.Color3f(si.emitter(scene).eval(si))
     monkeypatch.setattr(RayBundleIntegrator, "_source", doubled)
-    case = analytic.cases()["furnace_box"](resolution=RES)
-    res = analytic.check(case, integrator(first_shot=True), spp=1, runs=6, seed=2)
+    res = check("furnace_box", rb(32, first_shot=True))
     assert not res.passed and abs(res.z) > 8, res
+
+
+# hide_emitters: the directly seen emission is left out of the image
+@pytest.mark.parametrize("first_shot", [False, True], ids=["plain", "first_shot"])
+def test_hide_emitters_removes_the_seen_emission(first_shot):
+    """Furnace box: with hide_emitters the exact image is L - Le = expected(-1) -
+    expected(1). Test of the test: the same renders fail against L (z < -8)."""
+    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
+    images = harness.render_runs(case.scene(rb(64, averaged=16, first_shot=first_shot, hide_emitters=True)), 1, 16, 6)
+    hidden = harness.compare(images, case.expected(-1) - case.expected(1))
+    assert hidden["passed"], hidden["failures"]
+    shown = harness.compare(images, case.expected(-1))
+    assert not shown["passed"] and shown["z"] < -8, shown["failures"]
+
+
+# wrong images must fail: the structure test of the harness for a finite-element method
+@pytest.mark.parametrize("estimate", ["gather", "patch"])
+def test_wrong_images_fail(estimate):
+    """Diffuse sphere mesh: the renders pass against the exact image and fail, by the
+    structure test, against the mirrored exact image (right mean, wrong place) and
+    against one with 1.25x its contrast."""
+    case = analytic.cases()["diffuse_sphere_mesh"](resolution=RES)
+    cfg = rb(32, estimate=estimate)
+    images = harness.render_runs(case.scene(cfg), 1, 16, 8)
+    exact = case.expected()
+    right = harness.compare(images, exact, bias=case.known_bias)
+    assert right["passed"], right["failures"]
+    mean = exact.mean()
+    for wrong, slope in ((exact[:, ::-1], None), (mean + 1.25 * (exact - mean), 0.8)):
+        out = harness.compare(images, wrong, bias=case.known_bias)
+        assert not out["passed"] and any("image structure" in f for f in out["failures"]), out["failures"]
+        assert abs(out["slope"] - 1) > 8 * out["slope_se"], out
+        if slope is not None:       # regressed on 1.25x the structure, the right image has slope 1/1.25
+            budget.close(out["slope"], slope, out["slope_se"], what="slope on 1.25x the contrast")
 
 
 # average_diffuse: final gathering from the diffuse patches' averages over chains and iterations
@@ -197,44 +353,51 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
 AVERAGE_CASES = [("furnace_box", {}), ("furnace_sphere_mesh", {"first_shot": True}),
                  ("bekaert_sierpinski", {}), ("bekaert_sierpinski", {"first_shot": True, "gather_nee": False}),
                  ("diffuse_sphere_mesh", {"first_shot": True}),
-                 ("sierpinski_diffuse_simulated", {"first_shot": True, "burn_in": 24}),
+                 ("sierpinski_diffuse_simulated", {"first_shot": True}),
                  # nothing diffuse: every patch keeps the per-chain estimate
-                 ("constant_brdf_phong_box", {"first_shot": True, "burn_in": 24}),
+                 ("constant_brdf_phong_box", {"first_shot": True}),
                  # mixed: diffuse walls averaged, emitting (glossy) walls per chain
-                 ("constant_lightsource_box", {"burn_in": 24}),
-                 ("constant_lightsource_sierpinski", {"first_shot": True, "gather_nee": False, "burn_in": 24}),
+                 ("constant_lightsource_box", {}),
                  # the direct light averaged with the rest (gather_nee=false)
                  ("furnace_sphere_mesh", {"first_shot": True, "gather_nee": False}),
-                 ("constant_lightsource_box", {"first_shot": True, "gather_nee": False, "burn_in": 24})]
+                 ("constant_lightsource_box", {"first_shot": True, "gather_nee": False})]
+#: chains, averaged iterations, burn-in, runs, image resolution per case
+AVERAGE_BUDGET = {"furnace_box": (16, 8, 8, 16, RES), "furnace_sphere_mesh": (8, 8, 8, 16, RES),
+                  "bekaert_sierpinski": (16, 8, 16, 16, RES), "diffuse_sphere_mesh": (8, 8, 8, 16, RES),
+                  "sierpinski_diffuse_simulated": (16, 8, 8, 16, RES),
+                  "constant_brdf_phong_box": (32, 8, 16, 32, 8), "constant_lightsource_box": (64, 16, 24, 32, 8)}
 
 
 @pytest.mark.parametrize("name,extra", AVERAGE_CASES,
                          ids=["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
                               for n, e in AVERAGE_CASES])
 def test_average_diffuse_analytic_cases(name, extra):
-    case = analytic.cases()[name](resolution=RES)
-    cfg = integrator(average_diffuse=True, chains=4, iterations=extra.get("burn_in", 8) + 16, **extra)
-    res = analytic.check(case, cfg, spp=1, runs=6, seed=3, bias=case.known_bias)
-    assert res.passed, res
+    chains, averaged, burn_in, runs, res = AVERAGE_BUDGET[name]
+    out = check(name, rb(chains, averaged, burn_in, average_diffuse=True, **extra), runs, res, seed=3)
+    assert out.passed, out
 
 
 @pytest.mark.parametrize("extra", [{"estimate": "patch"}, {"bidirectional": False},
                                    {"estimate": "patch", "first_shot": True, "bidirectional": False}])
 def test_average_diffuse_variants_pass_the_furnace(extra):
-    case = analytic.furnace(0.5, 0.5, "sphere_mesh", resolution=RES)
-    res = analytic.check(case, integrator(average_diffuse=True, chains=4, iterations=24, **extra),
-                         spp=1, runs=6, seed=4)
+    res = check("furnace_sphere_mesh", rb(8, average_diffuse=True, **extra), seed=4)
     assert res.passed, res
 
 
+@budget.ratio_statistic("ray_bundle.rmse_ratio_average_diffuse")
+def rmse_ratio_average_diffuse(block):
+    """Same iterations, furnace sphere mesh, first shot, 16 chains, 4 seeds: RMSE without
+    over with average_diffuse."""
+    cfg = rb(16, averaged=16, first_shot=True)
+    seeds = [budget.block_seed(block, j) for j in range(4)]
+    plain = furnace_rmse(cfg, seeds, 8, "sphere_mesh")
+    averaged = furnace_rmse(dict(cfg, average_diffuse=True), seeds, 8, "sphere_mesh")
+    return plain / averaged
+
+
 def test_average_diffuse_lowers_the_error():
-    """Same iterations, furnace sphere mesh, first shot, 16 chains, 6 seeds: the
-    average over chains and iterations replaces one chain's stored value; measured RMSE
-    ratio 3.7, 3.9, 4.2 over three seed blocks."""
-    cfg = integrator(iterations=24, burn_in=8, resolution=32, chains=16, first_shot=True)
-    plain = furnace_rmse(cfg, range(6), RES, "sphere_mesh")
-    averaged = furnace_rmse(dict(cfg, average_diffuse=True), range(6), RES, "sphere_mesh")
-    assert plain / averaged > 2.5, (plain, averaged)
+    """The average over chains and iterations replaces one chain's stored value."""
+    budget.ratio("ray_bundle.rmse_ratio_average_diffuse", rmse_ratio_average_diffuse(0), 2.5, None)
 
 
 @pytest.mark.parametrize("first_shot,gather_nee,averaged", [(False, True, "L"), (True, True, "L"), (True, False, "R")],
@@ -258,9 +421,8 @@ def test_average_of_the_wrong_radiance_fails(monkeypatch, first_shot, gather_nee
         return add(self, layout, dirs, stored[averaged], incoming, weight)
     monkeypatch.setattr(ray_bundle_module.RayBundleIntegrator, "_reflect_into", reflect_keeping)
     monkeypatch.setattr(ray_bundle_module.DiffuseAverage, "add", add_wrong)
-    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    cfg = integrator(average_diffuse=True, chains=4, iterations=24, first_shot=first_shot, gather_nee=gather_nee)
-    res = analytic.check(case, cfg, spp=1, runs=6, seed=4)
+    cfg = rb(16, average_diffuse=True, first_shot=first_shot, gather_nee=gather_nee)
+    res = check("furnace_box", cfg, seed=4)
     assert not res.passed and abs(res.z) > 8, res
 
 
@@ -270,14 +432,15 @@ def test_gather_nee_splits_a_patch_constant_radiance():
     parts are not: the direct light T Le varies across a face (the neighbouring faces
     emit differently) and the rest, T (L - Le) - T Le, the other way. gather_nee=true
     takes the first part at the gathered point and the second from its patch average,
-    so the discretisation is no longer exact: measured 0.9936 +- 0.0002 (64 chains,
-    72 iterations, 8 runs); gather_nee=false averages the constant sum and passes
-    (0.9998 +- 0.0003)."""
-    case = analytic.cases()["bekaert_box"](resolution=RES)
-    cfg = integrator(iterations=72, burn_in=32, resolution=32, chains=64, first_shot=True, average_diffuse=True)
-    split = analytic.check(case, cfg, spp=1, runs=8, seed=1)
-    whole = analytic.check(case, dict(cfg, gather_nee=False), spp=1, runs=8, seed=1)
-    assert not split.passed and split.z < -8 and 0.990 < split.mean < 0.997, split
+    so the discretisation is no longer exact: the image mean is 0.64 % low (measured
+    0.99400 +- 0.00018 here, 64 runs; 0.9936 at 16 x 16 pixels); gather_nee=false
+    averages the constant sum and passes."""
+    case = analytic.cases()["bekaert_box"](resolution=8)
+    cfg = rb(32, averaged=16, burn_in=16, first_shot=True, average_diffuse=True)
+    split = analytic.check(case, cfg, spp=1, runs=16, seed=1)
+    whole = analytic.check(case, dict(cfg, gather_nee=False), spp=1, runs=16, seed=1)
+    assert not split.passed and split.z < -8, split
+    budget.close(split.mean, 0.9940, split.se, slack=0.001, what="gather_nee=true image mean (Bekaert box)")
     assert whole.passed, whole
 
 
@@ -287,12 +450,12 @@ def test_average_diffuse_progress_counts_the_final_gathering():
     that keeps asking to stop cuts them to one. The image is exact in the furnace
     either way (to the noise of a few iterations)."""
     scene = analytic.furnace(0.5, 0.5, "box", resolution=RES).scene(
-        integrator(iterations=10, burn_in=2, average_diffuse=True, chains=4))
+        dict(PAPER, iterations=10, burn_in=2, average_diffuse=True, chains=4))
     integ = scene.integrator()
     assert integ.iteration_count(1) == 10 + 8 and integ.iteration_count(2) == 20 + 18
     seen = []
     integ.progress_callback = lambda done, total: seen.append((done, total))
-    mi.render(scene, spp=1, seed=1)
+    mi.render(scene, spp=1, seed=budget.seed(1))
     assert seen == [(k, 18) for k in range(1, 19)]
     asked = []
 
@@ -300,19 +463,19 @@ def test_average_diffuse_progress_counts_the_final_gathering():
         asked.append(done)
         return done != 6
     integ.progress_callback = stop_once
-    img = np.array(mi.render(scene, spp=1, seed=1))
+    img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
     assert integ.iterations_done == 6 + 4 and integ.interrupted and asked == list(range(1, 11))
     assert np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.05
     integ.progress_callback = lambda done, total: done < 6
-    img = np.array(mi.render(scene, spp=1, seed=1))
+    img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
     integ.progress_callback = None
     assert integ.iterations_done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.05
-    a, b = np.array(mi.render(scene, seed=5, spp=1)), np.array(mi.render(scene, seed=5, spp=1))
+    a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
     assert np.array_equal(a, b)
 
 
 def test_non_mesh_shape_is_rejected():
-    scene = analytic.furnace(0.5, 0.5, "sphere", resolution=8).scene(integrator(iterations=2))
+    scene = analytic.furnace(0.5, 0.5, "sphere", resolution=8).scene(dict(PAPER, iterations=2))
     with pytest.raises(NonMeshShapeError, match="not a triangle mesh"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
     with pytest.raises(Exception) as err:      # through mi.render the error is chained
@@ -325,7 +488,7 @@ def test_non_mesh_shape_is_rejected():
 
 
 def test_delta_surface_warns():
-    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(integrator(iterations=2, burn_in=0))
+    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2, burn_in=0))
     shape = next(k for k, v in d.items() if isinstance(v, dict) and "bsdf" in v)
     d[shape]["bsdf"] = {"type": "conductor"}
     with pytest.warns(RuntimeWarning, match="delta"):
@@ -333,13 +496,13 @@ def test_delta_surface_warns():
 
 
 def test_fixed_seed_is_deterministic_and_progress_stops():
-    scene = analytic.furnace(0.5, 0.5, "box", resolution=RES).scene(integrator(iterations=6, burn_in=1))
-    a, b = np.array(mi.render(scene, seed=5, spp=1)), np.array(mi.render(scene, seed=5, spp=1))
+    scene = analytic.furnace(0.5, 0.5, "box", resolution=RES).scene(dict(PAPER, iterations=6, burn_in=1))
+    a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
     assert np.array_equal(a, b)
-    assert not np.array_equal(a, np.array(mi.render(scene, seed=6, spp=1)))
+    assert not np.array_equal(a, np.array(mi.render(scene, seed=budget.seed(6), spp=1)))
     integ = scene.integrator()
     integ.progress_callback = lambda done, total: done < 3
-    img = np.array(mi.render(scene, spp=1, seed=0))
+    img = np.array(mi.render(scene, spp=1, seed=budget.seed(0)))
     integ.progress_callback = None
     assert integ.iterations_done == 3 and np.all(np.isfinite(img))
 
@@ -355,10 +518,11 @@ def test_xml():
     scene = mi.load_string("""<scene version="3.0.0"><integrator type="ray_bundle">
         <integer name="chains" value="3"/><boolean name="stratify_chains" value="false"/>
         <boolean name="average_diffuse" value="true"/><boolean name="gather_nee" value="false"/>
-        </integrator></scene>""")
+        <boolean name="hide_emitters" value="true"/></integrator></scene>""")
     integ = scene.integrator()
-    assert (integ.stratify_chains, integ.average_diffuse, integ.gather_nee) == (False, True, False)
-    assert mi.load_dict(integrator(chains=3)).stratify_chains is True
+    assert (integ.stratify_chains, integ.average_diffuse, integ.gather_nee, integ.hide_emitters) == (
+        False, True, False, True)
+    assert mi.load_dict(dict(PAPER, chains=3)).stratify_chains is True
 
 
 @pytest.mark.parametrize("params,needle", [
@@ -373,7 +537,7 @@ def test_xml():
 ])
 def test_bad_parameters(params, needle):
     with pytest.raises(Exception) as err:
-        mi.load_dict(integrator(**params))
+        mi.load_dict(dict(PAPER, **params))
     assert needle in str(err.value), str(err.value)
 
 

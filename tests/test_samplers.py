@@ -133,6 +133,26 @@ def test_same_seed_same_image_other_seed_other_image(sampler):
     assert np.array_equal(a, b) and not np.array_equal(a, c)
 
 
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_sampler_seed_selects_the_randomisation_with_the_render_seed(sampler):
+    """The sampler's `seed` parameter is used: with the same render seed, scenes that
+    differ only in it render different images; seed 0 is exactly the image without it;
+    the same seeds give the same image (also through fork/clone, which keep the seed)."""
+    case = analytic.keller_cube(resolution=8)
+
+    def image(**params):
+        scene = case.scene("path", sampler=dict({"type": sampler}, **params))
+        return np.array(mi.render(scene, spp=4, seed=budget.seed(1)))
+
+    plain, zero, one, two, one_again = image(), image(seed=0), image(seed=1), image(seed=2), image(seed=1)
+    assert np.array_equal(plain, zero)
+    assert not np.array_equal(plain, one) and not np.array_equal(one, two)
+    assert np.array_equal(one, one_again)
+    s = mi.load_dict({"type": sampler, "seed": 7, "sample_count": 8, "scramble": False})
+    for copy in (s.fork(), s.clone()):
+        assert (copy.sampler_seed, copy.sample_count(), copy.scramble) == (7, 8, False)
+
+
 def test_sample_count_from_the_scene_and_bad_scramble():
     scene = analytic.keller_cube(resolution=8).scene("path", sampler={"type": "sobol", "sample_count": 8})
     assert scene.sensors()[0].sampler().sample_count() == 8

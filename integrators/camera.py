@@ -1,0 +1,96 @@
+"""Camera samples of the package's integrators, and camera paths through specular chains.
+
+:class:`CameraPass`: one pass of camera samples drawn from the sensor's sampler (film
+position, aperture, time), the way Mitsuba's own integrators draw them.
+:func:`specular_chain`: follows camera rays through surfaces whose BSDF is purely
+delta (mirrors, glass) to the first surface with a non-delta component, where the
+integrators evaluate their own estimate, collecting the emission seen on the way.
+"""
+import drjit as dr
+import mitsuba as mi
+
+#: camera paths through specular chains play Russian roulette after this many bounces
+#: (survival probability min(max throughput, 0.95), so perfect mirrors terminate too)
+RR_DEPTH = 5
+
+
+class CameraPass:
+    """One pass of camera samples: ``per_pixel`` samples of every pixel, drawn from
+    ``sampler`` (a seeded clone of the sensor's sampler). ``ray``, ``weight`` (the
+    sensor's importance weight), ``pos`` (film position to splat at), ``pixel`` (flat
+    index of the sample's pixel in the crop window), ``sampler`` (draw further numbers
+    from it) and ``count`` (lanes)."""
+
+    def __init__(self, frame, sampler, per_pixel):
+        film, sensor = frame.film, frame.sensor
+        size = film.crop_size()
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        full = size + 2 * border
+        idx = dr.arange(mi.UInt32, dr.prod(full) * per_pixel) // dr.opaque(mi.UInt32, per_pixel)
+        py = idx // full[0]
+        px = idx - py * full[0]
+        pos = mi.Vector2i(mi.Int32(px) - border, mi.Int32(py) - border)
+        self.pixel = mi.UInt32(dr.clip(pos.y, 0, size[1] - 1) * size[0] + dr.clip(pos.x, 0, size[0] - 1))
+        pos += mi.Vector2i(film.crop_offset())
+        pos_f = mi.Vector2f(pos) + sampler.next_2d()
+        scale = dr.rcp(mi.ScalarVector2f(size))
+        offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+        aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Point2f(0.5)
+        time = sensor.shutter_open()
+        if sensor.shutter_open_time() > 0:
+            time += sampler.next_1d() * sensor.shutter_open_time()
+        self.ray, weight = sensor.sample_ray(time, 0.0, dr.fma(pos_f, scale, offset), aperture)
+        self.weight = mi.Color3f(weight)
+        # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
+        self.pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
+        self.sampler = sampler
+        self.count = dr.width(idx)
+        self.per_pixel = int(per_pixel)
+
+
+class SpecularChain:
+    """Result of :func:`specular_chain`: ``ray`` reaching the first surface with a
+    non-delta component (``reached``), its ``throughput``, the ``emission`` seen along the
+    chain (including that surface's own), and ``depth``, the specular bounces before it."""
+
+
+def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitters=False):
+    """Follow camera rays (one per lane) through purely specular surfaces.
+
+    Delta BSDFs are sampled with ``rng`` (a per-lane ``mi.PCG32``); the path stops at the
+    first surface with any non-delta component (the delta lobes of mixed BSDFs such as
+    ``plastic`` are not followed), after ``max_bounces`` specular bounces, or when
+    Mitsuba's ``max_depth`` (1: emission seen directly only) is reached; Russian roulette
+    after ``RR_DEPTH`` bounces. ``hide_emitters`` hides directly visible emission."""
+    ctx = mi.BSDFContext()
+    depth_limit = mi.UInt32(max_depth if max_depth >= 0 else (1 << 30))
+    bounce_limit = mi.UInt32(max_bounces if max_bounces is not None else (1 << 30))
+
+    def body(ray, throughput, emission, active, reached, depth, rng):
+        si = scene.ray_intersect(ray, active)
+        show = active & (depth < depth_limit) & si.is_valid()
+        visible = show & (depth > 0) if hide_emitters else show
+        emission += dr.select(visible, throughput * mi.Color3f(si.emitter(scene, visible).eval(si, visible)), 0.0)
+        bsdf = si.bsdf(ray)
+        flags = bsdf.flags()
+        specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        reached |= show & ~specular & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        follow = show & specular & (depth + 1 < depth_limit) & (depth < bounce_limit)
+        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), follow)
+        throughput = dr.select(follow, throughput * mi.Color3f(w), throughput)
+        survive = dr.minimum(dr.max(throughput), 0.95)
+        roulette = follow & (depth + 1 >= RR_DEPTH)
+        follow &= ~roulette | (rng.next_float32() < survive)
+        throughput = dr.select(roulette & follow, throughput / survive, throughput)
+        follow &= dr.max(throughput) > 0
+        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), ray)
+        depth = dr.select(follow, depth + 1, depth)
+        return ray, throughput, emission, follow, reached, depth, rng
+
+    n = dr.width(ray.o)
+    state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
+                           dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
+                          lambda ray, throughput, emission, active, reached, depth, rng: active, body)
+    chain = SpecularChain()
+    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.depth, _ = state
+    return chain

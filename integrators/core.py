@@ -1,0 +1,220 @@
+"""The shared core of the package's integrators.
+
+As Mitsuba's ``ADIntegrator`` serves ``prb``, :class:`CoreIntegrator` owns everything
+around the estimator: the sensor and its film, the number of samples per pixel, the
+camera samples (drawn from the **sensor's sampler**, so ``sobol``/``halton``/``faure``
+or Mitsuba's samplers drive every integrator's camera rays), splatting into Mitsuba
+``ImageBlock``s with the film's reconstruction filter, developing the film (or leaving
+it undeveloped with ``develop=False``), the progress of the iterations and the named
+random streams. A plugin implements :meth:`CoreIntegrator.render_frame`.
+
+A :class:`Frame` collects the estimates of one render in named blocks, each developed on
+its own and summed:
+
+- *camera* estimates (``frame.camera_block(name)``): one value per camera sample, put
+  with weight 1; developing divides by the accumulated filter weight, so the block holds
+  the average of all its camera samples whatever the number of passes finished;
+- *light* estimates (``frame.light_block(name, scale)``): splats of light paths at their
+  film position (``DirectionSample3f.uv``), put with weight 0 into a normalising block
+  and multiplied by ``scale`` (as Mitsuba's particle tracer does).
+
+``frame.commit()`` (after an iteration's ``dr.eval``) marks the state an interrupted
+render returns to, so a Ctrl-C between an iteration's splats and its evaluation never
+keeps half an iteration.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins import seeds
+from mi_plugins.integrators.camera import CameraPass
+from mi_plugins.progress import Progress, Steps
+
+#: scatter-adds into small arrays (per-triangle sums) from many lanes: on the LLVM
+#: backend, per-core copies of the target instead of contended atomics
+SPLAT_MODE = dr.ReduceMode.Expand
+
+SUPPORTED = "a JIT RGB (non-polarized) variant such as 'llvm_ad_rgb' or 'cuda_ad_rgb'"
+
+
+def check_variant(plugin):
+    """Raise unless the active variant is one the package's integrators run in."""
+    variant = mi.variant() or ""
+    if variant.startswith("scalar") or "rgb" not in variant or "polarized" in variant:
+        raise RuntimeError("%s: variant '%s' is not supported: this integrator is vectorised with Dr.Jit; use %s"
+                           % (plugin, variant, SUPPORTED))
+
+
+class Frame:
+    """The state of one render (see the module docstring)."""
+
+    def __init__(self, scene, sensor, spp, seed):
+        self.scene, self.sensor, self.spp, self.seed = scene, sensor, int(spp), int(seed)
+        self.film = sensor.film()
+        size = self.film.crop_size()
+        self.width, self.height = int(size[0]), int(size[1])
+        self.pixels = self.width * self.height
+        self._blocks = {}        # name -> (block, light scale or None)
+        self._committed = {}
+        self._sampler = None
+
+    # ------------------------------------------------------------------ camera samples
+    def camera_passes(self, per_pixel, passes):
+        """Prepare ``passes`` passes of ``per_pixel`` camera samples per pixel: the sensor's
+        sampler is cloned with sample_count = per_pixel x passes and seeded once, so a
+        low-discrepancy sampler gives every pixel one well-distributed sample set over all
+        the passes."""
+        sampler = self.sensor.sampler().clone()
+        sampler.set_sample_count(int(per_pixel) * max(int(passes), 1))
+        sampler.set_samples_per_wavefront(int(per_pixel))
+        film = self.film
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        lanes = (self.width + 2 * border) * (self.height + 2 * border) * int(per_pixel)
+        if lanes >= 1 << 32:
+            raise ValueError("%d camera samples per pass exceed 2^32: use fewer samples per pixel" % lanes)
+        sampler.seed(seeds.stream(self.seed, "camera"), lanes)
+        self._sampler, self._per_pixel, self._passes_begun = sampler, int(per_pixel), 0
+
+    def camera_pass(self):
+        """The next pass of camera samples (after :meth:`camera_passes`)."""
+        if self._passes_begun > 0:
+            self._sampler.advance()
+        self._passes_begun += 1
+        return CameraPass(self, self._sampler, self._per_pixel)
+
+    # ------------------------------------------------------------------ blocks
+    def camera_block(self, name="camera"):
+        if name not in self._blocks:
+            block = self.film.create_block()
+            block.set_coalesce(False)
+            self._blocks[name] = (block, None)
+        return self._blocks[name][0]
+
+    def light_block(self, name="light", scale=1.0):
+        """A normalising block for light-path splats; ``scale`` multiplies it when developed
+        (a Python float, or a callable evaluated then, e.g. 1 / steps finished)."""
+        if name not in self._blocks:
+            block = self.film.create_block(normalize=True)
+            block.set_offset(self.film.crop_offset())
+            block.set_coalesce(False)
+            self._blocks[name] = (block, scale)
+        return self._blocks[name][0]
+
+    def put_camera(self, cam, value, name="camera", active=True):
+        """Average ``value`` (Color3f per camera sample of ``cam``) into a camera block."""
+        block = self.camera_block(name)
+        block.put(cam.pos, cam.ray.wavelengths, mi.Color3f(value) * cam.weight, dr.select(active, 1.0, 0.0), 1.0,
+                  active)
+
+    def put_light(self, uv, value, name="light", scale=1.0, active=True):
+        """Splat ``value`` at film positions ``uv`` into a light block (weight 0)."""
+        block = self.light_block(name, scale)
+        block.put(uv + mi.Vector2f(block.offset()), dr.zeros(mi.Color0f), mi.Color3f(value), 1.0, 0.0, active)
+
+    def state(self):
+        return [block.tensor() for block, _ in self._blocks.values()]
+
+    def commit(self):
+        """Remember the blocks' current contents (after the iteration's dr.eval)."""
+        self._committed = {name: mi.TensorXf(block.tensor()) for name, (block, _) in self._blocks.items()}
+
+    def rollback(self):
+        """Return every block to its last committed contents (empty if never committed)."""
+        for name in list(self._blocks):
+            block, scale = self._blocks[name]
+            if name in self._committed:
+                block.clear()
+                block.put_block(mi.ImageBlock(self._committed[name], block.offset(), None, False,
+                                              block.normalize()))
+            else:
+                del self._blocks[name]
+
+    # ------------------------------------------------------------------ develop
+    def develop(self, develop=True):
+        """The image (TensorXf (H, W, C)): every block developed with the film and summed.
+        With ``develop=False`` the film is left holding the result (call
+        ``film.develop()`` or ``film.bitmap()``) and an empty tensor is returned."""
+        if not self._blocks:
+            self.camera_block()
+        images = []
+        for block, scale in self._blocks.values():
+            self.film.prepare([])
+            self.film.put_block(block)
+            image = self.film.develop()
+            if scale is not None:
+                image = image * (scale() if callable(scale) else scale)
+            images.append(image)
+        result = images[0]
+        for image in images[1:]:
+            result = result + image
+        if develop:
+            return result
+        # leave the film holding the result: the one weighted block as it is, or the sum
+        # of several as a block of unit weights
+        self.film.prepare([])
+        if len(self._blocks) == 1 and next(iter(self._blocks.values()))[1] is None:
+            self.film.put_block(next(iter(self._blocks.values()))[0])
+        else:
+            channels = self.film.create_block().channel_count()
+            data = np.ones((self.height, self.width, channels), dtype=np.float32)
+            data[..., :3] = np.array(result)[..., :3]
+            self.film.put_block(mi.ImageBlock(mi.TensorXf(data), self.film.crop_offset()))
+        return mi.TensorXf()
+
+
+class CoreIntegrator(mi.SamplingIntegrator):
+    """Base class of the package's integrators: ``render()`` resolves the sensor and the
+    samples per pixel, builds a :class:`Frame` and calls :meth:`render_frame`
+    (implemented by the plugin), then develops the film. Progress: see
+    :mod:`mi_plugins.progress`."""
+
+    #: the registered plugin name (set by each plugin)
+    plugin = "integrator"
+
+    def __init__(self, props):
+        super().__init__(props)
+        check_variant(self.plugin)
+        self.progress = Progress()
+        self.progress_callback = None
+
+    # backwards-compatible views of the progress of the last render
+    @property
+    def iterations_done(self):
+        return self.progress.done
+
+    @property
+    def interrupted(self):
+        return self.progress.interrupted
+
+    @property
+    def averaged_fraction(self):
+        return self.progress.averaged_fraction
+
+    def iteration_count(self, spp):
+        """Steps a render with ``spp`` runs (1 for single-pass integrators)."""
+        return 1
+
+    def steps(self, iterations, burn_in, total=None):
+        """The step driver of one render (see :class:`mi_plugins.progress.Steps`)."""
+        return Steps(self, iterations, burn_in, total)
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if isinstance(sensor, int):
+            sensors = scene.sensors()
+            if not 0 <= sensor < len(sensors):
+                raise ValueError("%s: sensor=%d, but the scene has %d sensor(s)" % (self.plugin, sensor, len(sensors)))
+            sensor = sensors[sensor]
+        spp = int(spp) if spp else int(sensor.sampler().sample_count())
+        if spp < 1:
+            raise ValueError("%s: spp=%d must be >= 1" % (self.plugin, spp))
+        self.progress = Progress()
+        frame = Frame(scene, sensor, spp, seed)
+        with dr.suspend_grad():
+            self.render_frame(frame)
+            return frame.develop(develop)
+
+    def render_frame(self, frame):
+        raise NotImplementedError
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        raise RuntimeError("%s renders whole images; use mi.render(scene)" % self.plugin)
