@@ -118,7 +118,7 @@ class QMCLightTraceIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------------ preprocessing
     def _u(self, index, dim, seed):
-        return qmc.sample_dynamic(self.sequence, index, dim, 2 * self.max_depth + 4, self.scramble, seed)
+        return qmc.sample(self.sequence, index, dim, dims=2 * self.max_depth + 4, scramble=self.scramble, seed=seed)
 
     def _trace_particles(self, scene, table, start, count, seed):
         """Deposit the power of paths start .. start + count - 1; returns (reflected power

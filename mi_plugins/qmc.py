@@ -10,16 +10,29 @@ one kernel without Python loops over points:
 ``sobol``       Sobol, Joe-Kuo direction numbers (dims < ``MAX_SOBOL_DIM``)
 ``hammersley``  dimension 0 is index / n, dimension d >= 1 is Halton's d - 1
 ``lcg``         48-bit linear congruential generator (drand48), one stream
-``independent`` PCG32, stream = point index, advanced to ``dim``
+``independent`` PCG32: stream = point index, its ``dim``-th number
 =============== ============================================================
 
-Randomisation (``seed`` is an int; equal seeds give equal points):
+There is one implementation, :func:`sample`; the others are thin wrappers. The
+dimension is a JIT value: an int ``dim`` is checked and passed opaquely (one compiled
+kernel for every dimension), a ``mi.UInt32`` ``dim`` may differ per lane (the samplers).
+``seed`` is an int or a ``mi.UInt32`` per lane; equal seeds give equal points.
 
-- ``scramble=True`` on ``halton`` / ``faure``: random digit permutations (an
-  independent random permutation of {0..b-1} per base and digit position);
-- ``scramble=True`` on ``sobol``: Owen scrambling by hashing (nested uniform
-  scramble, Laine-Karras style permutation of the bit-reversed value);
-- ``rotate=True`` on any sequence: Cranley-Patterson rotation (x + u_d) mod 1.
+Randomisation, keyed by :func:`hash32` (seed, dimension):
+
+- ``scramble=True``: ``sobol``: Owen scrambling by hashing (nested uniform scramble,
+  Laine-Karras permutation of the bit-reversed value); ``halton``: random digit
+  permutations, one per dimension and digit position, drawn from the affine maps
+  d -> (a d + c) mod b (a != 0): for a prime base these are pairwise uniform like
+  uniformly random permutations, so every integrand has the same variance, and they
+  are computed by hashing instead of tables; ``faure``: Faure's permutation followed by
+  a random digit shift d -> (d + c) mod b per dimension and digit position (a random
+  permutation from the full affine group would make scrambled Faure the same
+  randomisation as scrambled Halton, erasing Faure's permutation; a shift keeps the
+  differences between permuted digits). Every scramble maps b-adic elementary intervals
+  onto such intervals and makes each point uniform on [0, 1)^s; ``lcg`` and
+  ``independent`` ignore it (``seed`` seeds them);
+- ``rotate=True`` on any sequence: Cranley-Patterson rotation (x + u) mod 1.
 
 :func:`points` returns an (n, dims) numpy array for convenience.
 """
@@ -33,6 +46,7 @@ import numpy as np
 
 SEQUENCES = ("halton", "faure", "sobol", "hammersley", "lcg", "independent")
 MAX_HALTON_DIM = 256
+MAX_SOBOL_DIM = 1024
 _DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "sobol_joe_kuo_1024.npz")
 
 
@@ -40,9 +54,9 @@ class DimensionError(ValueError):
     """A dimension beyond what a sequence's tables support."""
 
 
-def _check_dim(dim, limit, name):
-    if not isinstance(dim, (int, np.integer)) or dim < 0 or dim >= limit:
-        raise DimensionError("%s: dim=%r is outside the supported dimensions [0, %d)" % (name, dim, limit))
+def max_dim(sequence):
+    return {"halton": MAX_HALTON_DIM, "faure": MAX_HALTON_DIM, "hammersley": MAX_HALTON_DIM + 1,
+            "sobol": MAX_SOBOL_DIM}.get(sequence, 1 << 30)
 
 
 # --------------------------------------------------------------------------- tables (numpy, cached)
@@ -56,11 +70,6 @@ def primes(count):
         if sieve[p]:
             sieve[p * p::p] = False
     return np.nonzero(sieve)[0][:count]
-
-
-def _digits(base):
-    """Digits of a 32-bit index in ``base``."""
-    return int(math.ceil(32 * math.log(2) / math.log(base)))
 
 
 @functools.lru_cache(maxsize=None)
@@ -82,10 +91,9 @@ def _sobol_matrix():
     """(MAX_SOBOL_DIM, 32) uint32 direction numbers V[d, k] = m_k << (31 - k)."""
     data = np.load(_DATA)
     poly, vinit = data["poly"].astype(np.int64), data["vinit"].astype(np.int64)
-    dims = len(poly)
-    v = np.zeros((dims, 32), dtype=np.uint64)
+    v = np.zeros((len(poly), 32), dtype=np.uint64)
     v[0] = [1 << (31 - k) for k in range(32)]
-    for d in range(1, dims):
+    for d in range(1, len(poly)):
         s = int(poly[d]).bit_length() - 1
         a = (int(poly[d]) >> 1) & ((1 << (s - 1)) - 1) if s > 1 else 0
         m = [0] * 33
@@ -101,26 +109,50 @@ def _sobol_matrix():
     return v.astype(np.uint32)
 
 
-MAX_SOBOL_DIM = 1024
+@functools.lru_cache(maxsize=None)
+def _tables(variant):
+    """JIT tables of the current variant: Halton bases, offsets of each base's Faure
+    permutation in the flat permutation table, that table, digits per base, Sobol
+    directions [dim * 32 + k]."""
+    bases = primes(MAX_HALTON_DIM).astype(np.uint32)
+    offsets = np.concatenate([[0], np.cumsum(bases)[:-1]]).astype(np.uint32)
+    perms = np.concatenate([faure_permutation(int(b)) for b in bases]).astype(np.uint32)
+    digits = np.ceil(32 * np.log(2) / np.log(bases)).astype(np.uint32)   # of a 32-bit index
+    return tuple(mi.UInt32(t) for t in (bases, offsets, perms, digits, _sobol_matrix().ravel()))
 
 
-# --------------------------------------------------------------------------- helpers (Dr.Jit)
-def _u32(index):
-    return index if isinstance(index, mi.UInt32) else mi.UInt32(index)
-
-
-def _to_unit(bits32):
-    """uint32 -> float in [0, 1) (24 significant bits, never 1.0)."""
-    return mi.Float(bits32 >> 8) * (1.0 / (1 << 24))
-
-
-def _hash(*values):
-    """32-bit hash of ints (Python) for seeding tables."""
+# --------------------------------------------------------------------------- hashing, JIT helpers
+def hash32(*values):
+    """The package's one 32-bit hash of ints and/or ``mi.UInt32`` arrays (then per lane):
+    equal inputs give equal results, whatever their type (a Python int when all are ints)."""
     h = 0x9E3779B9
     for v in values:
-        h = (h ^ (int(v) & 0xFFFFFFFF)) * 0x85EBCA6B & 0xFFFFFFFF
+        v = int(v) & 0xFFFFFFFF if isinstance(v, (int, np.integer)) else v
+        h = ((h ^ v) * 0x85EBCA6B) & 0xFFFFFFFF
         h ^= h >> 13
+        h = (h * 0xC2B2AE35) & 0xFFFFFFFF
+        h ^= h >> 16
     return h
+
+
+def to_unit(bits):
+    """uint32 -> float in [0, 1) (24 significant bits, never 1.0)."""
+    return mi.Float(bits >> 8) * (1.0 / (1 << 24))
+
+
+def _jit(value, limit=None, name=None):
+    """An int as an opaque mi.UInt32 (checked against ``limit`` when given), or the array."""
+    if not isinstance(value, (int, np.integer)):
+        return mi.UInt32(value)
+    if limit is not None and not 0 <= value < limit:
+        raise DimensionError("%s: dim=%r is outside the supported dimensions [0, %d)" % (name, value, limit))
+    return dr.opaque(mi.UInt32, int(value) & 0xFFFFFFFF)
+
+
+def _rotate(x, key):
+    """Cranley-Patterson rotation (x + u) mod 1, u = hash of ``key``: the one rotation."""
+    y = x + to_unit(hash32(key, 0xC0FFEE))
+    return dr.select(y >= 1.0, y - 1.0, y)
 
 
 def _reverse_bits(x):
@@ -131,108 +163,50 @@ def _reverse_bits(x):
     return (x >> 16) | (x << 16)
 
 
-def owen_scramble(bits, seed):
+def _owen(bits, key):
     """Nested uniform (Owen) scramble of 32-bit fixed-point values by hashing
     (Laine-Karras permutation applied to the bit-reversed value)."""
-    x = _reverse_bits(bits)
-    x += seed
-    x ^= x * 0x6C50B47C
-    x ^= x * 0xB82F1E52
-    x ^= x * 0xC7AFE638
-    x ^= x * 0x8D22F6E6
+    x = _reverse_bits(bits) + key
+    for m in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+        x ^= x * m
     return _reverse_bits(x)
 
 
-def _rotation(seed, dim):
-    return (_hash(seed, dim, 0xC0FFEE) >> 8) / float(1 << 24)
+# --------------------------------------------------------------------------- kernels (JIT dimension)
+def _radical_inverse(index, d, faure, key):
+    """Radical inverse of ``index`` in the ``d``-th prime: plain, with Faure's permutation,
+    scrambled (``key``: random affine digit permutations; with ``faure``: digit shifts)."""
+    bases, offsets, perms, digits, _ = _tables(mi.variant())
+    base = dr.maximum(dr.gather(mi.UInt32, bases, d), 2)    # masked-out lanes gather 0
+    offset, count = dr.gather(mi.UInt32, offsets, d), dr.gather(mi.UInt32, digits, d)
+    inv_base = 1.0 / mi.Float64(base)
 
-
-def _rotate(x, seed, dim):
-    y = x + _rotation(seed, dim)
-    return dr.select(y >= 1.0, y - 1.0, y)
-
-
-# --------------------------------------------------------------------------- sequences
-def _radical_inverse(index, base, permutation=None, digit_permutations=None):
-    """Radical inverse of ``index`` (UInt32) in ``base``; optional digit permutation
-    (numpy array of length base) or per-digit permutations (numpy (digits, base))."""
-    index = _u32(index)
-    n_digits = _digits(base)
-    result = dr.zeros(mi.Float64, dr.width(index))
-    scale = 1.0
-    perm_tables = None
-    if digit_permutations is not None:
-        perm_tables = mi.UInt32(np.asarray(digit_permutations, dtype=np.uint32).ravel())
-    elif permutation is not None:
-        perm_tables = mi.UInt32(np.asarray(permutation, dtype=np.uint32))
-    rest = mi.UInt32(index)
-    for k in range(n_digits):  # a loop over digit positions (unrolled), not over points
+    def digit_step(k, rest, scale, result):
         digit = rest % base
-        rest = rest // base
-        if perm_tables is not None:
-            offset = k * base if digit_permutations is not None else 0
-            digit = dr.gather(mi.UInt32, perm_tables, digit + offset)
-        scale /= base
-        result += mi.Float64(digit) * scale
+        if faure:
+            digit = dr.gather(mi.UInt32, perms, offset + digit)
+        if key is not None:
+            h = hash32(key, k)
+            a = 1 if faure else (h // base) % (base - 1) + 1
+            digit = (a * digit + h % base) % base
+        scale = scale * inv_base
+        return k + 1, rest // base, scale, result + mi.Float64(digit) * scale
+
+    width = max(dr.width(index), dr.width(d), dr.width(key) if key is not None else 1)
+    # a loop over the digits of a 32-bit index (ceil(32 / log2 b) of them; JIT, not unrolled)
+    state = (dr.zeros(mi.UInt32, width), mi.UInt32(index) + dr.zeros(mi.UInt32, width),
+             dr.ones(mi.Float64, width), dr.zeros(mi.Float64, width))
+    result = dr.while_loop(state, lambda k, *_: k < count, digit_step)[3]
     return mi.Float(dr.minimum(result, 1.0 - 2.0 ** -24))
 
 
-def _random_digit_permutations(base, seed, dim):
-    rng = np.random.default_rng(_hash(seed, dim, base))
-    return np.stack([rng.permutation(base) for _ in range(_digits(base))])
-
-
-def halton(index, dim, scramble=False, seed=0, rotate=False):
-    """Coordinate ``dim`` of Halton points ``index`` (radical inverse in the dim-th prime)."""
-    _check_dim(dim, MAX_HALTON_DIM, "halton")
-    base = int(primes(MAX_HALTON_DIM)[dim])
-    perms = _random_digit_permutations(base, seed, dim) if scramble else None
-    x = _radical_inverse(index, base, digit_permutations=perms)
-    return _rotate(x, seed, dim) if rotate else x
-
-
-def faure(index, dim, scramble=False, seed=0, rotate=False):
-    """Halton with Faure's digit permutations (the same permutation for every digit)."""
-    _check_dim(dim, MAX_HALTON_DIM, "faure")
-    base = int(primes(MAX_HALTON_DIM)[dim])
-    if scramble:
-        # a random permutation composed with Faure's (still one fixed permutation per digit)
-        perms = _random_digit_permutations(base, seed, dim)[:, faure_permutation(base)]
-        x = _radical_inverse(index, base, digit_permutations=perms)
-    else:
-        x = _radical_inverse(index, base, permutation=faure_permutation(base))
-    return _rotate(x, seed, dim) if rotate else x
-
-
-def sobol_bits(index, dim):
-    """32-bit Sobol coordinate (UInt32) of points ``index`` in dimension ``dim``."""
-    _check_dim(dim, MAX_SOBOL_DIM, "sobol")
-    v = _sobol_matrix()[dim]
-    index = _u32(index)
-    result = dr.zeros(mi.UInt32, dr.width(index))
-    for k in range(32):  # one XOR per index bit (unrolled)
-        result ^= dr.select(((index >> k) & 1) != 0, mi.UInt32(int(v[k])), mi.UInt32(0))
-    return result
-
-
-def sobol(index, dim, scramble=False, seed=0, rotate=False):
-    """Coordinate ``dim`` of Sobol points ``index`` (Joe-Kuo direction numbers);
-    ``scramble``: hash-based Owen scrambling."""
-    bits = sobol_bits(index, dim)
-    if scramble:
-        bits = owen_scramble(bits, mi.UInt32(_hash(seed, dim, 0x5EED)))
-    x = _to_unit(bits)
-    return _rotate(x, seed, dim) if rotate else x
-
-
-def hammersley(index, dim, n, scramble=False, seed=0, rotate=False):
-    """Coordinate ``dim`` of the ``n``-point Hammersley set: index / n, then Halton."""
-    if int(n) < 1:
-        raise ValueError("hammersley: n=%r must be >= 1" % (n,))
-    if dim == 0:
-        x = mi.Float(_u32(index)) / float(n)
-        return _rotate(x, seed, dim) if rotate else x
-    return halton(index, dim - 1, scramble, seed, rotate)
+def _sobol_bits(index, d):
+    """32-bit Sobol coordinate: XOR of the direction numbers of the index's set bits."""
+    table = _tables(mi.variant())[4]
+    bits = mi.UInt32(0)
+    for k in range(32):
+        bits ^= dr.select(((index >> k) & 1) != 0, dr.gather(mi.UInt32, table, d * 32 + k), 0)
+    return bits
 
 
 _LCG_A, _LCG_C, _LCG_MASK = 0x5DEECE66D, 0xB, (1 << 48) - 1
@@ -240,193 +214,87 @@ _LCG_A, _LCG_C, _LCG_MASK = 0x5DEECE66D, 0xB, (1 << 48) - 1
 
 def _lcg_jump(k):
     """(A_k, C_k) with X_{n+k} = A_k X_n + C_k mod 2^48, vectorised over UInt64 ``k``."""
-    acc_a, acc_c = dr.ones(mi.UInt64, dr.width(k)), dr.zeros(mi.UInt64, dr.width(k))
+    acc_a, acc_c = mi.UInt64(1), mi.UInt64(0)
     a, c = _LCG_A, _LCG_C
     for bit in range(40):  # binary exponentiation over the bits of k (unrolled)
         take = ((k >> bit) & 1) != 0
-        new_a = (acc_a * a) & _LCG_MASK
-        new_c = (acc_c * a + c) & _LCG_MASK
-        acc_a, acc_c = dr.select(take, new_a, acc_a), dr.select(take, new_c, acc_c)
+        acc_a, acc_c = (dr.select(take, (acc_a * a) & _LCG_MASK, acc_a),
+                        dr.select(take, (acc_c * a + c) & _LCG_MASK, acc_c))
         c = (c * (a + 1)) & _LCG_MASK
         a = (a * a) & _LCG_MASK
     return acc_a, acc_c
 
 
+def sample(sequence, index, dim, dims=None, n=None, scramble=False, seed=0, rotate=False):
+    """Coordinate ``dim`` of the points ``index`` of ``sequence`` (the implementation
+    behind every generator of this module). ``dims``: numbers per point of ``lcg``
+    (default dim + 1); ``n``: size of the ``hammersley`` set."""
+    if sequence not in SEQUENCES:
+        raise ValueError("sequence=%r: must be one of %s" % (sequence, ", ".join(SEQUENCES)))
+    d, s, index = _jit(dim, max_dim(sequence), sequence), _jit(seed), mi.UInt32(index)
+    key = hash32(s, d)                   # per (seed, dimension): scramble and rotation
+    scramble_key = key if scramble else None
+    if sequence in ("halton", "faure"):
+        x = _radical_inverse(index, d, sequence == "faure", scramble_key)
+    elif sequence == "sobol":
+        bits = _sobol_bits(index, d)
+        x = to_unit(_owen(bits, key) if scramble else bits)
+    elif sequence == "hammersley":
+        if n is None or int(n) < 1:
+            raise ValueError("hammersley: n=%r must be >= 1" % (n,))
+        x = dr.select(d == 0, mi.Float(index) / float(n),
+                      _radical_inverse(index, dr.maximum(d, 1) - 1, False, scramble_key))
+    elif sequence == "lcg":
+        if dims is None and not isinstance(dim, (int, np.integer)):
+            raise ValueError("lcg: a JIT dimension needs dims (numbers per point)")
+        step = mi.UInt64(index) * mi.UInt64(_jit(int(dim) + 1 if dims is None else dims)) + mi.UInt64(d) + 1
+        a, c = _lcg_jump(step)
+        state = (a * ((mi.UInt64(s) << 16) | 0x330E) + c) & _LCG_MASK   # srand48(seed)
+        x = dr.minimum(mi.Float(mi.Float64(state) * (1.0 / float(1 << 48))), 1.0 - 2.0 ** -24)
+    else:  # independent: number d of the PCG32 stream ``index`` (jump-ahead by d)
+        rng = mi.PCG32(max(dr.width(index), dr.width(d)))
+        rng.seed(mi.UInt64(hash32(s, 0x1D)), mi.UInt64(index))   # (the constructor would add the lane)
+        rng = rng + mi.Int64(d)
+        x = rng.next_float32()
+    return _rotate(x, key) if rotate else x
+
+
+def halton(index, dim, scramble=False, seed=0, rotate=False):
+    """Coordinate ``dim`` of Halton points ``index`` (radical inverse in the dim-th prime)."""
+    return sample("halton", index, dim, scramble=scramble, seed=seed, rotate=rotate)
+
+
+def faure(index, dim, scramble=False, seed=0, rotate=False):
+    """Halton with Faure's digit permutations (the same permutation for every digit)."""
+    return sample("faure", index, dim, scramble=scramble, seed=seed, rotate=rotate)
+
+
+def sobol(index, dim, scramble=False, seed=0, rotate=False):
+    """Coordinate ``dim`` of Sobol points ``index`` (Joe-Kuo direction numbers)."""
+    return sample("sobol", index, dim, scramble=scramble, seed=seed, rotate=rotate)
+
+
+def hammersley(index, dim, n, scramble=False, seed=0, rotate=False):
+    """Coordinate ``dim`` of the ``n``-point Hammersley set: index / n, then Halton."""
+    return sample("hammersley", index, dim, n=n, scramble=scramble, seed=seed, rotate=rotate)
+
+
 def lcg(index, dim, dims, seed=0, rotate=False):
     """drand48-style 48-bit LCG: point ``index`` uses numbers index*dims .. index*dims + dims - 1
     of one stream started from the state (seed << 16) | 0x330E (drand48's srand48)."""
-    k = mi.UInt64(_u32(index)) * int(dims) + int(dim) + 1
-    a, c = _lcg_jump(k)
-    x0 = ((int(seed) & 0xFFFFFFFF) << 16) | 0x330E
-    state = (a * x0 + c) & _LCG_MASK
-    x = mi.Float(mi.Float64(state) * (1.0 / float(1 << 48)))
-    x = dr.minimum(x, 1.0 - 2.0 ** -24)
-    return _rotate(x, seed, dim) if rotate else x
+    return sample("lcg", index, dim, dims=dims, seed=seed, rotate=rotate)
 
 
 def independent(index, dim, seed=0, rotate=False):
     """PCG32: stream ``index`` (seeded from ``seed``), its ``dim``-th number."""
-    index = _u32(index)
-    rng = mi.PCG32(dr.width(index), mi.UInt64(_hash(seed, 0x1D)), mi.UInt64(index))
-    for _ in range(int(dim)):  # advance the (vectorised) generators to number ``dim``
-        rng.next_uint32()
-    x = rng.next_float32()
-    return _rotate(x, seed, dim) if rotate else x
-
-
-def sample(sequence, index, dim, dims=None, n=None, scramble=False, seed=0, rotate=False):
-    """Dispatch by name: coordinate ``dim`` of points ``index`` of ``sequence``."""
-    if sequence == "halton":
-        return halton(index, dim, scramble, seed, rotate)
-    if sequence == "faure":
-        return faure(index, dim, scramble, seed, rotate)
-    if sequence == "sobol":
-        return sobol(index, dim, scramble, seed, rotate)
-    if sequence == "hammersley":
-        return hammersley(index, dim, n, scramble, seed, rotate)
-    if sequence == "lcg":
-        return lcg(index, dim, dims if dims is not None else dim + 1, seed, rotate)
-    if sequence == "independent":
-        return independent(index, dim, seed, rotate)
-    raise ValueError("sequence=%r: must be one of %s" % (sequence, ", ".join(SEQUENCES)))
-
-
-def max_dim(sequence):
-    return {"halton": MAX_HALTON_DIM, "faure": MAX_HALTON_DIM, "hammersley": MAX_HALTON_DIM + 1,
-            "sobol": MAX_SOBOL_DIM}.get(sequence, 1 << 30)
+    return sample("independent", index, dim, seed=seed, rotate=rotate)
 
 
 def points(sequence, n, dims, start=0, scramble=False, seed=0, rotate=False):
-    """(n, dims) numpy array of points start .. start + n - 1."""
+    """(n, dims) numpy array of points start .. start + n - 1 (one kernel for all dims)."""
     if int(dims) > max_dim(sequence):
         raise DimensionError("%s: dims=%d exceeds the %d supported dimensions" % (sequence, dims, max_dim(sequence)))
-    index = dr.arange(mi.UInt32, int(start), int(start) + int(n))
-    cols = [sample(sequence, index, d, dims=dims, n=n, scramble=scramble, seed=seed, rotate=rotate)
-            for d in range(int(dims))]
-    return np.stack([np.array(c, dtype=np.float64) for c in cols], axis=1)
-
-
-# --------------------------------------------------------------------------- dynamic dimension
-# Samplers advance their dimension inside symbolic loops, so the dimension is a JIT
-# variable there: these variants take ``dim`` as a mi.UInt32 array.
-@functools.lru_cache(maxsize=None)
-def _halton_tables():
-    """Flat digit tables for dims < MAX_HALTON_DIM: bases, per-dim offsets, Faure perms."""
-    bases = primes(MAX_HALTON_DIM).astype(np.uint32)
-    offsets = np.concatenate([[0], np.cumsum(bases)[:-1]]).astype(np.uint32)
-    faure_perms = np.concatenate([faure_permutation(int(b)) for b in bases]).astype(np.uint32)
-    return bases, offsets, faure_perms
-
-
-def hash_u32(*values):
-    """Vectorised 32-bit hash of UInt32 arrays (and ints)."""
-    h = mi.UInt32(0x9E3779B9)
-    for v in values:
-        h = (h ^ mi.UInt32(v)) * 0x85EBCA6B
-        h ^= h >> 13
-        h *= 0xC2B2AE35
-        h ^= h >> 16
-    return h
-
-
-def _hashed_unit(*values):
-    return _to_unit(hash_u32(*values))
-
-
-def sobol_dynamic(index, dim, scramble_seed=None):
-    """Sobol coordinate for per-lane ``dim`` (UInt32 < MAX_SOBOL_DIM); optional per-lane Owen seed."""
-    table = _sobol_dynamic_table()
-    index = _u32(index)
-    base = dim * 32
-    result = dr.zeros(mi.UInt32, dr.width(index))
-    for k in range(32):
-        v = dr.gather(mi.UInt32, table, base + k)
-        result ^= dr.select(((index >> k) & 1) != 0, v, 0)
-    if scramble_seed is not None:
-        result = owen_scramble(result, scramble_seed)
-    return _to_unit(result)
-
-
-@functools.lru_cache(maxsize=None)
-def _sobol_dynamic_table():
-    return mi.UInt32(_sobol_matrix().ravel())
-
-
-@functools.lru_cache(maxsize=None)
-def _random_permutation_table(seed):
-    """Random digit permutations for every (dim, digit position), flattened: entry
-    [offsets[dim] * 32 + k * base + digit]."""
-    bases, offsets, _ = _halton_tables()
-    tables = [np.concatenate([_random_digit_permutations(int(b), seed, d), np.zeros(
-        (32 - _digits(int(b)), int(b)), dtype=np.int64)]) for d, b in enumerate(bases)]
-    return mi.UInt32(np.concatenate([t.ravel() for t in tables]).astype(np.uint32))
-
-
-def halton_dynamic(index, dim, faure=False, permutation_seed=None):
-    """Halton coordinate for per-lane ``dim`` (UInt32 < MAX_HALTON_DIM): plain, with Faure's
-    permutations (``faure``), or with random digit permutations (``permutation_seed``)."""
-    bases, offsets, perms = _halton_tables()
-    # masked-out lanes (inside symbolic loops) gather 0: keep the divisor >= 2
-    base = dr.maximum(dr.gather(mi.UInt32, mi.UInt32(bases), dim), 2)
-    offset = dr.gather(mi.UInt32, mi.UInt32(offsets), dim)
-    perm_table = mi.UInt32(perms) if faure else None
-    random_table = _random_permutation_table(int(permutation_seed)) if permutation_seed is not None else None
-    rest = mi.UInt32(_u32(index))
-    result = dr.zeros(mi.Float64, dr.width(rest))
-    scale = dr.ones(mi.Float64, dr.width(rest))
-    inv_base = 1.0 / mi.Float64(base)
-    for k in range(32):  # enough digits for base 2; larger bases reach 0 earlier
-        digit = rest % base
-        rest = rest // base
-        if faure:
-            digit = dr.gather(mi.UInt32, perm_table, offset + digit)
-        elif random_table is not None:
-            digit = dr.gather(mi.UInt32, random_table, offset * 32 + k * base + digit)
-        scale *= inv_base
-        result += mi.Float64(digit) * scale
-    return mi.Float(dr.minimum(result, 1.0 - 2.0 ** -24))
-
-
-def lcg_dynamic(index, dim, dims, seed=0):
-    """:func:`lcg` with ``dim``/``dims`` as JIT values (one kernel for every dimension)."""
-    k = mi.UInt64(_u32(index)) * mi.UInt64(dims) + mi.UInt64(dim) + 1
-    a, c = _lcg_jump(k)
-    x0 = ((int(seed) & 0xFFFFFFFF) << 16) | 0x330E
-    state = (a * x0 + c) & _LCG_MASK
-    return dr.minimum(mi.Float(mi.Float64(state) * (1.0 / float(1 << 48))), 1.0 - 2.0 ** -24)
-
-
-def independent_dynamic(index, dim, seed=0):
-    """PCG32 stream per point, one generator state per dimension (JIT ``dim``)."""
-    index = _u32(index)
-    state = mi.UInt64(hash_u32(mi.UInt32(dim), int(_hash(seed, 0x1D)))) | (mi.UInt64(index) << 32)
-    rng = mi.PCG32(dr.width(index), state, mi.UInt64(index))
-    return rng.next_float32()
-
-
-def sample_dynamic(sequence, index, dim, dims, scramble=False, seed=0):
-    """Coordinate ``dim`` (a Python int turned into an opaque JIT value, so that all
-    dimensions share one compiled kernel) of points ``index`` of ``sequence``.
-    Randomisation as in :func:`sample`: Owen scrambling (Sobol), random digit
-    permutations (Halton), a Cranley-Patterson rotation on top of Faure's permutations,
-    seeds for lcg / independent."""
-    if not 0 <= int(dim) < max_dim(sequence):
-        raise DimensionError("%s: dim=%r is outside the supported dimensions [0, %d)"
-                             % (sequence, dim, max_dim(sequence)))
-    d = dr.opaque(mi.UInt32, int(dim))
-    if sequence == "sobol":
-        owen = hash_u32(d, dr.opaque(mi.UInt32, _hash(seed, 0x5EED))) if scramble else None
-        return sobol_dynamic(index, d, owen)
-    if sequence == "halton":
-        return halton_dynamic(index, d, permutation_seed=int(seed) if scramble else None)
-    if sequence == "faure":
-        x = halton_dynamic(index, d, faure=True)
-        if not scramble:
-            return x
-        y = x + _hashed_unit(d, dr.opaque(mi.UInt32, _hash(seed, 0xFA)))
-        return dr.select(y >= 1.0, y - 1.0, y)
-    if sequence == "lcg":
-        return lcg_dynamic(index, dr.opaque(mi.UInt64, int(dim)), dr.opaque(mi.UInt64, int(dims)), seed)
-    if sequence == "independent":
-        return independent_dynamic(index, d, seed)
-    raise ValueError("sequence=%r: must be one of %s" % (sequence, ", ".join(SEQUENCES)))
+    lane = dr.arange(mi.UInt32, int(n) * int(dims))
+    x = sample(sequence, lane // int(dims) + int(start), lane % int(dims), dims=int(dims), n=n,
+               scramble=scramble, seed=seed, rotate=rotate)
+    return np.array(x, dtype=np.float64).reshape(int(n), int(dims))

@@ -25,15 +25,7 @@ STREAMS = {
 }
 
 
-def hash32(*values):
-    """A 32-bit hash (Python ints) of the given values: the package's one scalar hash."""
-    h = 0x9E3779B9
-    for v in values:
-        h = ((h ^ (int(v) & 0xFFFFFFFF)) * 0x85EBCA6B) & 0xFFFFFFFF
-        h ^= h >> 13
-        h = (h * 0xC2B2AE35) & 0xFFFFFFFF
-        h ^= h >> 16
-    return h
+from mi_plugins.qmc import hash32  # noqa: E402  (the package's one hash, ints or mi.UInt32 arrays)
 
 
 def stream(seed, name, index=0):

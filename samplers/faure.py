@@ -1,13 +1,14 @@
 """``faure``: Halton sequence with Faure's digit permutations (Keller's report).
 
 Parameters as ``halton``: ``sample_count`` (int >= 1, default 4), ``scramble`` (bool,
-default true: per-pixel Cranley-Patterson rotation on top of Faure's deterministic
-permutations), ``seed`` (int, default 0: selects the randomisation together
-with the render seed).
+default true: Faure's permutation followed by a random digit shift per pixel, dimension
+and digit position, the scramble of ``mi_plugins.qmc``), ``seed`` (int, default 0:
+selects the randomisation together with the render seed).
 """
-from mi_plugins.samplers.halton import HaltonSampler
+from mi_plugins import qmc
+from mi_plugins.samplers.sequence_sampler import SequenceSampler
 
 
-class FaureSampler(HaltonSampler):
+class FaureSampler(SequenceSampler):
     sequence = "faure"
-    faure = True
+    max_dim = qmc.max_dim(sequence)

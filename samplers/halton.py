@@ -14,9 +14,9 @@
    * - scramble
      - bool
      - true
-     - random digit permutations (one per dimension and digit position, fixed) plus a
-       per-pixel Cranley-Patterson rotation (independent randomisation per pixel); the
-       permutations remove the correlations of plain Halton in high dimensions
+     - random digit permutations (one per pixel, dimension and digit position: the
+       scramble of ``mi_plugins.qmc``), so every pixel has its own randomisation; the
+       permutations also remove the correlations of plain Halton in high dimensions
    * - seed
      - int, 0 .. 2^32 - 1
      - 0
@@ -29,10 +29,4 @@ from mi_plugins.samplers.sequence_sampler import SequenceSampler
 
 class HaltonSampler(SequenceSampler):
     sequence = "halton"
-    max_dim = qmc.MAX_HALTON_DIM
-    faure = False
-
-    def sequence_value(self, index, dim):
-        permuted = self.scramble and not self.faure
-        return self._rotate(qmc.halton_dynamic(index, dim, faure=self.faure,
-                                               permutation_seed=0 if permuted else None), dim)
+    max_dim = qmc.max_dim(sequence)

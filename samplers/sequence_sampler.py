@@ -1,14 +1,25 @@
 """Base class of the low-discrepancy samplers (``halton``, ``sobol``, ``faure``).
 
-Mitsuba renders a wavefront of ``pixels x spp`` lanes; lane j belongs to pixel
-j // spp and is that pixel's sample j % spp. Every lane draws coordinate ``dim`` of
-point (j % spp) of the sequence, and the dimension advances by one per drawn number
-(``next_2d`` takes two). The dimension is a Dr.Jit variable, so it advances correctly
-inside the symbolic loops of Mitsuba's integrators.
+Mitsuba's protocol: ``sample_count()`` = N samples per pixel in total,
+``set_samples_per_wavefront(k)`` (k per pixel per pass; N when not called),
+``seed(seed, pixels * k)`` and ``advance()`` between passes. Lane j of pass p is
+sample p * k + j % k of pixel j // k; it draws coordinate ``dim`` of that point of the
+sequence, the dimension advancing by one per drawn number (``next_2d`` takes two) and
+``advance()`` resetting it to 0. The dimension is a Dr.Jit variable, so it advances
+correctly inside the symbolic loops of Mitsuba's integrators. With k = N (one pass)
+lane j is sample j % N of pixel j // N.
 
-Decorrelation between pixels: each pixel gets its own randomisation of the sequence
-(hash of pixel, dimension and seed): Owen scrambling for Sobol, a Cranley-Patterson
-rotation for Halton and Faure. With ``scramble=False`` all pixels use the same
+``set_samples_per_wavefront(k)`` applies to the next ``seed()`` only: Mitsuba's C++
+renderer sets its own value through a non-virtual call that a Python sampler cannot
+see, so a value left by an earlier Python caller must not leak into it. (A C++
+multi-pass render, e.g. ``samples_per_pass`` of Mitsuba's integrators, is therefore
+seen as passes of N samples per pixel: unbiased, but the pixels do not get the points
+0 .. N-1; ``advance()`` warns.)
+
+Decorrelation between pixels: each pixel's points are scrambled with its own seed (hash
+of pixel and render seed), with the scramble :mod:`mi_plugins.qmc` defines for the
+sequence (Owen for Sobol, random digit permutations for Halton, Faure's permutation and
+random digit shifts for Faure). With ``scramble=False`` all pixels use the same
 unrandomised points (deterministic, correlated across pixels: for studies only).
 Dimensions beyond the sequence's table fall back to hashed pseudo-random numbers.
 
@@ -26,7 +37,7 @@ from mi_plugins.params import Params
 
 
 class SequenceSampler(mi.Sampler):
-    #: sequence name and the number of dimensions its tables cover (set by subclasses)
+    #: sequence name (set by subclasses) and the dimensions its tables cover
     sequence = None
     max_dim = 0
 
@@ -38,10 +49,10 @@ class SequenceSampler(mi.Sampler):
         scramble = p.bool("scramble", True)
         super().__init__(props)
         self.scramble, self.sampler_seed = scramble, sampler_seed
-        self.base_seed = mi.UInt32(0)
-        self.sample_index = mi.UInt32(0)
-        self.pixel = mi.UInt32(0)
-        self.dimension = mi.UInt32(0)
+        self.next_per_pixel = None        # set_samples_per_wavefront(k) for the next seed()
+        self.per_pixel, self.per_pixel_told, self.passes = 1, False, 0
+        self.base_seed = self.sample_index = self.pixel = self.dimension = mi.UInt32(0)
+        self.wavefront = 1
 
     def _properties(self):
         """Fresh Properties with this sampler's parameters (the constructor's are temporary)."""
@@ -52,32 +63,50 @@ class SequenceSampler(mi.Sampler):
         return props
 
     # ------------------------------------------------------------------ state
+    def set_samples_per_wavefront(self, k):
+        super().set_samples_per_wavefront(k)     # checks that k divides sample_count
+        self.next_per_pixel = int(k)
+
     def seed(self, seed, wavefront_size=0xFFFFFFFF):
         width = int(wavefront_size) if wavefront_size != 0xFFFFFFFF else 1
-        lane = dr.arange(mi.UInt32, width)
-        spp = self.sample_count()
-        self.sample_index = lane % spp
-        self.pixel = lane // spp
+        self.per_pixel_told = self.next_per_pixel is not None
+        self.per_pixel = self.next_per_pixel or int(self.sample_count())
+        self.next_per_pixel, self.passes, self.wavefront = None, 0, width
+        self.pixel = dr.arange(mi.UInt32, width) // self.per_pixel
+        self._set_sample_index()
         if isinstance(seed, int):
             seed &= 0xFFFFFFFF
         # the render seed and the sampler's `seed` parameter together (seed 0: as without it)
-        if self.sampler_seed == 0:
-            self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3)
-        else:
-            self.base_seed = qmc.hash_u32(mi.UInt32(seed), 0xA511E9B3, self.sampler_seed)
+        extra = (self.sampler_seed,) if self.sampler_seed else ()
+        self.base_seed = qmc.hash32(mi.UInt32(seed), 0xA511E9B3, *extra)
+        dr.make_opaque(self.base_seed)            # a new seed reuses the compiled kernels
         self.dimension = dr.zeros(mi.UInt32, width)
-        self.wavefront = width
+
+    def _set_sample_index(self):
+        # the pass offset is opaque: every pass runs the same kernels
+        self.sample_index = (dr.arange(mi.UInt32, self.wavefront) % self.per_pixel
+                             + dr.opaque(mi.UInt32, self.passes * self.per_pixel))
+
+    def advance(self):
+        if not self.per_pixel_told and self.passes == 0:
+            mi.Log(mi.LogLevel.Warn, "%s: advance() after a seed() without set_samples_per_wavefront(): "
+                   "each pass is taken as %d samples per pixel (a Python sampler cannot see the samples per "
+                   "pass of Mitsuba's C++ renderer)" % (self.sequence, self.per_pixel))
+        self.passes += 1
+        self._set_sample_index()
+        self.dimension = dr.zeros(mi.UInt32, self.wavefront)
 
     def _copy_state(self, other):
-        other.base_seed = mi.UInt32(self.base_seed)
-        other.sample_index = mi.UInt32(self.sample_index)
-        other.pixel = mi.UInt32(self.pixel)
-        other.dimension = mi.UInt32(self.dimension)
-        other.wavefront = getattr(self, "wavefront", 1)
+        for name in ("next_per_pixel", "per_pixel", "per_pixel_told", "passes", "wavefront"):
+            setattr(other, name, getattr(self, name))
+        for name in ("base_seed", "sample_index", "pixel", "dimension"):
+            setattr(other, name, mi.UInt32(getattr(self, name)))
         return other
 
     def fork(self):
-        return type(self)(self._properties())
+        other = type(self)(self._properties())
+        other.next_per_pixel = self.next_per_pixel
+        return other
 
     def clone(self):
         return self._copy_state(type(self)(self._properties()))
@@ -86,31 +115,21 @@ class SequenceSampler(mi.Sampler):
         dr.schedule(self.base_seed, self.sample_index, self.pixel, self.dimension)
 
     # ------------------------------------------------------------------ numbers
-    def _value(self, dim, active):
+    def _value(self, dim):
         """Coordinate ``dim`` (UInt32 per lane) of each lane's point."""
         in_table = dim < self.max_dim
-        safe_dim = dr.select(in_table, dim, 0)
-        value = self.sequence_value(self.sample_index, safe_dim)
-        fallback = qmc._hashed_unit(self.pixel, self.sample_index, dim, self.base_seed)
+        value = qmc.sample(self.sequence, self.sample_index, dr.select(in_table, dim, 0), scramble=self.scramble,
+                           seed=qmc.hash32(self.pixel, self.base_seed))
+        fallback = qmc.to_unit(qmc.hash32(self.pixel, self.sample_index, dim, self.base_seed))
         return dr.select(in_table, value, fallback)
 
-    def sequence_value(self, index, dim):
-        raise NotImplementedError
-
-    def _rotate(self, x, dim):
-        if not self.scramble:
-            return x
-        y = x + qmc._hashed_unit(self.pixel, dim, self.base_seed, 0x0C9A)
-        return dr.select(y >= 1.0, y - 1.0, y)
-
     def next_1d(self, active=True):
-        x = self._value(self.dimension, active)
+        x = self._value(self.dimension)
         self.dimension += 1
         return x
 
     def next_2d(self, active=True):
-        x = self._value(self.dimension, active)
-        y = self._value(self.dimension + 1, active)
+        x, y = self._value(self.dimension), self._value(self.dimension + 1)
         self.dimension += 2
         return mi.Point2f(x, y)
 

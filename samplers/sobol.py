@@ -14,7 +14,8 @@
    * - scramble
      - bool
      - true
-     - per-pixel hash-based Owen scrambling (independent randomisation per pixel)
+     - per-pixel hash-based Owen scrambling (independent randomisation per pixel; the
+       scramble of ``mi_plugins.qmc``)
    * - seed
      - int, 0 .. 2^32 - 1
      - 0
@@ -29,8 +30,4 @@ from mi_plugins.samplers.sequence_sampler import SequenceSampler
 
 class SobolSampler(SequenceSampler):
     sequence = "sobol"
-    max_dim = qmc.MAX_SOBOL_DIM
-
-    def sequence_value(self, index, dim):
-        seed = qmc.hash_u32(self.pixel, dim, self.base_seed) if self.scramble else None
-        return qmc.sobol_dynamic(index, dim, seed)
+    max_dim = qmc.max_dim(sequence)

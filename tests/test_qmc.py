@@ -26,12 +26,12 @@ def test_sobol_matches_scipy_in_gray_code_order(dims, n):
 
 @pytest.mark.parametrize("dims, n", [(64, 4096), (1024, 16)])
 def test_jit_dimension_sobol_matches_scipy(dims, n):
-    """sobol_dynamic (the dimension a per-lane JIT value: what the samplers and
-    qmc_lighttrace use) against scipy, all dimensions in one kernel."""
+    """sobol with the dimension a per-lane JIT value (what the samplers use) against
+    scipy, all dimensions in one kernel."""
     i = np.arange(n)
     gray = np.repeat(i ^ (i >> 1), dims).astype(np.uint32)
     dim = np.tile(np.arange(dims), n).astype(np.uint32)
-    ours = np.array(qmc.sobol_dynamic(mi.UInt32(gray), mi.UInt32(dim))).reshape(n, dims)
+    ours = np.array(qmc.sobol(mi.UInt32(gray), mi.UInt32(dim))).reshape(n, dims)
     assert np.abs(ours - sq.Sobol(dims, scramble=False).random(n)).max() == 0.0
 
 
@@ -39,9 +39,9 @@ def test_jit_dimension_halton_matches_scipy_and_faure_is_its_permutation():
     n, dims = 1024, 48
     index = np.repeat(np.arange(n), dims).astype(np.uint32)
     dim = np.tile(np.arange(dims), n).astype(np.uint32)
-    ours = np.array(qmc.halton_dynamic(mi.UInt32(index), mi.UInt32(dim))).reshape(n, dims)
+    ours = np.array(qmc.halton(mi.UInt32(index), mi.UInt32(dim))).reshape(n, dims)
     assert np.abs(ours - sq.Halton(dims, scramble=False).random(n)).max() < 1e-6
-    faure = np.array(qmc.halton_dynamic(mi.UInt32(index), mi.UInt32(dim), faure=True)).reshape(n, dims)
+    faure = np.array(qmc.faure(mi.UInt32(index), mi.UInt32(dim))).reshape(n, dims)
     assert np.abs(faure - qmc.points("faure", n, dims)).max() < 1e-6
     assert np.abs(faure[:, 0] - ours[:, 0]).max() < 1e-7          # base 2: Faure's permutation is the identity
 
@@ -121,3 +121,96 @@ def test_dimension_over_the_table_is_refused(sequence, dim):
 def test_unknown_sequence():
     with pytest.raises(ValueError, match="sequence='niederreiter'"):
         qmc.sample("niederreiter", mi.UInt32([0]), 0)
+
+
+def test_one_hash_for_ints_and_arrays():
+    """qmc.hash32 is the package's one hash (seeds.hash32 is it): ints and mi.UInt32
+    lanes give equal results, and the integrators' streams keep their value."""
+    from mi_plugins import seeds
+    assert seeds.hash32 is qmc.hash32
+    values = budget.rng(11).integers(0, 1 << 32, size=(64, 3))
+    lanes = np.array(qmc.hash32(*(mi.UInt32(values[:, i].astype(np.uint32)) for i in range(3))))
+    assert list(lanes) == [qmc.hash32(*v) for v in values.tolist()]
+    assert np.array(qmc.hash32(mi.UInt32(values[:, 0].astype(np.uint32)), int(values[0, 1])))[0] == \
+        qmc.hash32(*values[0, :2].tolist())
+    assert seeds.stream(1, "camera") == 0x648F9C1E          # as before qmc.hash32 replaced seeds.hash32
+
+
+def test_independent_is_one_pcg32_stream_per_point():
+    """Number d of point i is number d of the PCG32 stream i, whatever the lane."""
+    idx = mi.UInt32(budget.rng(12).permutation(64).astype(np.uint32))
+    rng = mi.PCG32()
+    rng.seed(mi.UInt64(qmc.hash32(budget.seed(3), 0x1D)), mi.UInt64(idx))
+    for d in range(5):
+        assert np.array_equal(np.array(qmc.independent(idx, d, seed=budget.seed(3))), np.array(rng.next_float32()))
+    assert np.array(qmc.independent(mi.UInt32([7]), 1000, seed=budget.seed(3)))[0] == \
+        np.array(qmc.independent(mi.UInt32([5, 7]), mi.UInt32([3, 1000]), seed=budget.seed(3)))[1]
+
+
+@pytest.mark.parametrize("sequence", ["halton", "faure", "sobol", "hammersley", "lcg", "independent"])
+def test_jit_dimension_and_per_lane_seed_give_the_points_of_int_arguments(sequence):
+    """One implementation: per-lane dimensions and seeds (as the samplers call it) give
+    exactly the numbers of int dimensions and seeds (points(), qmc_lighttrace)."""
+    n, dims, seeds = 64, 5, [budget.seed(21), budget.seed(22)]
+    lane = np.arange(n * dims * len(seeds))
+    index, dim, which = lane % n, (lane // n) % dims, lane // (n * dims)
+    kw = dict(dims=dims, n=n, scramble=True, rotate=True)
+    jit = np.array(qmc.sample(sequence, mi.UInt32(index), mi.UInt32(dim),
+                              seed=mi.UInt32(np.array(seeds, dtype=np.uint32)[which]), **kw))
+    ints = np.concatenate([np.array(qmc.sample(sequence, dr.arange(mi.UInt32, n), d, seed=s, **kw))
+                           for s in seeds for d in range(dims)])
+    assert np.array_equal(jit, ints)
+    assert np.array_equal(qmc.points(sequence, n, dims, scramble=True, seed=seeds[0], rotate=True),
+                          ints[:n * dims].reshape(dims, n).T)
+
+
+@pytest.mark.parametrize("sequence, dim", [("halton", 0), ("halton", 2), ("halton", 5), ("faure", 3), ("faure", 5)])
+def test_digit_scrambles_keep_the_b_adic_strata(sequence, dim):
+    """Random digit permutations (Halton) and Faure's permutation + digit shifts permute
+    digits: the first b^2 points still fill the b^2 intervals of length 1/b^2 once each;
+    and Faure's scramble is exactly Faure's permutation followed by a shift mod b."""
+    b = int(qmc.primes(8)[dim])
+    x = qmc.points(sequence, b * b, dim + 1, scramble=True, seed=budget.seed(31))[:, dim]
+    assert sorted(np.floor(x * b * b).astype(int)) == list(range(b * b))
+    if sequence == "faure":
+        shift = (np.floor(x[:b] * b).astype(int) - qmc.faure_permutation(b)) % b
+        assert np.all(shift == shift[0])
+
+
+class _Chi2:
+    """A chi-square test of observed counts against uniform frequencies, with the
+    run(alpha) interface of mitsuba.chi2.ChiSquareTest (for budget.chi2)."""
+
+    def __init__(self, counts):
+        self.counts = np.asarray(counts, dtype=np.float64)
+
+    def run(self, alpha):
+        import scipy.stats
+        return scipy.stats.chisquare(self.counts).pvalue >= alpha
+
+
+def test_halton_digit_permutations_are_pairwise_uniform_over_seeds():
+    """The justification of hashed affine digit permutations: over seeds, the images
+    (pi(0), pi(1)) of two digits are uniform over the b (b - 1) distinct pairs, as for
+    uniformly random permutations (so every integrand has the same variance)."""
+    b, seeds = 7, 20000
+    first_digit = lambda i, s: np.floor(np.array(qmc.halton(mi.UInt32(np.full(seeds, i, dtype=np.uint32)), 3,
+                                                             scramble=True, seed=mi.UInt32(s))) * b).astype(int)
+    s = (np.arange(seeds) + budget.seed(41) * seeds).astype(np.uint32)
+    p0, p1 = first_digit(0, s), first_digit(1, s)
+    assert np.all(p0 != p1)
+    pairs = np.bincount(p0 * b + p1, minlength=b * b).reshape(b, b)
+    assert budget.chi2(_Chi2(pairs[~np.eye(b, dtype=bool)]))
+
+
+@pytest.mark.parametrize("sequence", ["halton", "faure", "sobol", "hammersley"])
+def test_scrambled_points_are_uniform_over_seeds(sequence):
+    """Each scramble makes every point uniform: point 0 (unscrambled 0 in every
+    dimension) over many seeds has mean 1/2 and variance 1/12."""
+    seeds = 1 << 14
+    s = mi.UInt32((np.arange(seeds) + budget.seed(51) * seeds).astype(np.uint32))
+    for dim in (1, 4, 40):
+        x = np.array(qmc.sample(sequence, dr.zeros(mi.UInt32, seeds), dim, n=2, scramble=True, seed=s),
+                     dtype=np.float64)
+        budget.close(x.mean(), 0.5, np.sqrt(1 / 12 / seeds), what="%s dim %d mean" % (sequence, dim))
+        budget.close(x.var(), 1 / 12, np.sqrt(1 / 180 / seeds), what="%s dim %d variance" % (sequence, dim))
