@@ -42,6 +42,10 @@ EXCEPTIONS = {
         (0.2, "control of the ptracer roulette finding: simulated emission with the uniform estimator on a "
               "glossy conductor has single estimates of 1 - a swinging far both ways; 16 runs x 64 spp detect "
               "about 11 %, enough to rule out the finding's 44 % (2 % would take ~40x the samples)"),
+    "tests/test_ray_bundle.py::test_lightsource_sierpinski":
+        (0.035, "ray_bundle on constant_lightsource_sierpinski: surfaces that reflect everything need a burn-in "
+                "of ~72 iterations and the global directions' noise is large (per-run SD 4.1 % at 64 chains); "
+                "32 runs x 128 chains detect 2.6 % (about 10 s); 2 % would take 2-4x that"),
 }
 
 SEED_OFFSET = int(os.environ.get("MI_PLUGINS_SEED_OFFSET", "0") or 0)

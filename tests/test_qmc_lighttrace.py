@@ -11,9 +11,14 @@ detect only more than 2 % (power rule) and 0.12 % fail (nominal 6.8e-6); 32 or 6
 or spp 4096, still leave 3-6 % above 2 %. The box scenes are therefore checked in a
 view of the middle of a face (FACE_VIEW: every visible point is at least 0.42 from an
 edge, single samples stay below 4.3 L; measured over 3200 runs: median tolerance
-0.33 % at spp 64, no check above 1.5 %, z centred). The light sample with a BSDF sample
+0.33 % at spp 64, no check above 1.5 %, z centred), the Sierpinski cases in a view of
+the tetrahedron without box edges (SIERPINSKI_VIEW), the mirror box in MIRROR_VIEW;
+these cases have a constant exact radiance, so every view is exact. The test above
+keeps the cases' own views. The light sample with a BSDF sample
 combined by MIS (mi_plugins.sampling.direct_light(..., bsdf_sample=...)) removes the
-tail: Keller cube, own view, spp 256: median tolerance 0.06 % instead of 0.87 %.
+tail (measured by patching the integrator's _direct in a scratch run, 800 runs: Keller
+cube, own view, spp 256: median tolerance 0.06 % instead of 0.87 %, z centred): with
+that fix the cases' own views can come back.
 
 Budgets: a render's cost is its particle phase (one kernel per bounce, almost
 independent of the number of paths), the error of the image mean comes from the
@@ -22,11 +27,13 @@ phase's error of the image mean is small). So the checks use 16 runs, spp 64-256
 16 x 16 pixels, 2 gather rays and 10000 particle paths: every passing check detects a
 relative error of the mean below 1 % (typically 0.2-0.7 %).
 """
+import functools
+
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, geometry, qmc
+from mi_plugins import analytic, geometry
 from mi_plugins.analytic import harness, stats
 from mi_plugins.analytic.case import rgb_dict
 from mi_plugins.analytic.cases import ConstantCase
@@ -49,11 +56,23 @@ TRUNCATION_BIAS = 1e-4
 FACE_VIEW = (([0.0, 0.0, 0.6], [0.0, 0.0, -1.0], [0, 1, 0]), 40.0)
 
 
-def face_view(case):
-    """``case`` (a box scene with constant exact radiance) seen in FACE_VIEW."""
+#: the Sierpinski tetrahedron in front of the middle of the back wall: no edge of the box
+#: in view (>= 0.2 away); the touching corners of the sub-tetrahedra keep a milder tail
+#: (measured over 1280 runs of furnace_sierpinski: at 16 runs x spp 256 median tolerance
+#: 0.55 %, no check above 1.5 %; in the case's own view 9 % of the checks exceed 2 %)
+SIERPINSKI_VIEW = (([0.0, -0.15, 0.95], [0.0, -0.15, -1.0], [0, 1, 0]), 36.0)
+
+
+def in_view(case, view):
+    """``case`` (constant exact radiance: any view is exact) seen from ``view`` (camera, fov)."""
     assert case.exact_constant(-1) is not None
-    case.camera, case.fov = FACE_VIEW
+    case.camera, case.fov = view
     return case
+
+
+def face_view(case):
+    """A box case seen in FACE_VIEW."""
+    return in_view(case, FACE_VIEW)
 
 
 def lighttrace(**kw):
@@ -101,13 +120,29 @@ def test_keller_cube_exact_truncated_value(sequence):
     assert res.passed, res
 
 
-@pytest.mark.parametrize("case_name", ["furnace_sierpinski", "bekaert_sierpinski", "diffuse_sphere_mesh",
-                                       "sierpinski_diffuse_simulated"])
+#: case name -> view (None: the case's own view)
+LARGE_M_CASES = {"furnace_sierpinski": SIERPINSKI_VIEW, "bekaert_sierpinski": SIERPINSKI_VIEW,
+                 "diffuse_sphere_mesh": None, "sierpinski_diffuse_simulated": SIERPINSKI_VIEW}
+
+
+@pytest.mark.parametrize("case_name", list(LARGE_M_CASES))
 def test_cases_with_large_m(case_name):
+    """The Sierpinski cases in SIERPINSKI_VIEW; the sphere (no edges) in its own view."""
+    case, images = large_m_renders(case_name)
+    res = harness.compare(images, case.expected(-1), bias=TRUNCATION_BIAS + case.known_bias)
+    assert res["passed"], res["failures"]
+
+
+@functools.lru_cache(maxsize=None)
+def large_m_renders(case_name):
+    """(case, RUNS renders with M = LARGE_M at LARGE_SPP), computed once per session:
+    test_wrong_images_fail reuses the sphere's."""
     case = analytic.cases()[case_name](resolution=RES)
-    res = analytic.check(case, lighttrace(max_depth=LARGE_M), spp=LARGE_SPP, runs=RUNS, max_depth=-1,
-                         bias=TRUNCATION_BIAS + case.known_bias)
-    assert res.passed, res
+    if LARGE_M_CASES[case_name]:
+        case = in_view(case, LARGE_M_CASES[case_name])
+    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M)), LARGE_SPP, seed=0)
+    images.setflags(write=False)
+    return case, images
 
 
 def test_truncation_is_visible_when_checked_against_the_untruncated_value():
@@ -147,13 +182,13 @@ def test_adaptive_termination_stops_earlier_for_larger_epsilon():
 
 def test_max_samples_bounds_the_adaptive_loop():
     """With an epsilon no batch reaches, the adaptive loop stops at exactly max_samples
-    (batches of 5000, the last one cut to 2500), and the image still passes."""
+    (a batch of 5000, then one cut to 2500), and the image still passes."""
     case = face_view(analytic.keller_cube(resolution=RES))
-    scene = case.scene(lighttrace(epsilon=1e-12, batch=5000, max_samples=12500))
+    scene = case.scene(lighttrace(epsilon=1e-12, batch=5000, max_samples=7500))
     images = render_runs(scene, SPP, seed=4)
     integrator = scene.integrator()
-    assert integrator.paths_used == 12500
-    assert len(integrator.delta_e_history) == 2 and min(integrator.delta_e_history) > 1e-12
+    assert integrator.paths_used == 7500
+    assert len(integrator.delta_e_history) == 1 and integrator.delta_e_history[0] > 1e-12
     res = harness.compare(images, case.expected(9))
     assert res["passed"], res["failures"]
 
@@ -185,16 +220,21 @@ def test_scramble_false_is_deterministic_and_passes():
 
 # ------------------------------------------------------------------ neighbour sharing
 SHARE_SPP = 64
+#: M of the sharing renders: in the Bekaert box the power per hit decays like 0.43 at most
+#: (largest eigenvalue of the two-cell hit chain, red: albedos 0.2 / 0.7, form factors 0.4
+#: to the own cell and 0.6 to the other), so paths of up to M + 3 = 15 segments miss
+#: less than 0.43^15 / 0.57 = 5e-6 < TRUNCATION_BIAS
+SHARE_M = 12
 
 
 def share_renders(block, runs=RUNS):
-    """Bekaert box (M = 29, 1 gather ray): ``runs`` renders without and with
+    """Bekaert box (SHARE_M, 1 gather ray): ``runs`` renders without and with
     share_neighbors, run j of both with the same seed (common random numbers: the
     direct light, which dominates the error, is the same in both)."""
     case = face_view(analytic.bekaert("box", resolution=RES))
     images = {}
     for share in (False, True):
-        scene = case.scene(lighttrace(max_depth=LARGE_M, gather_samples=1, share_neighbors=share))
+        scene = case.scene(lighttrace(max_depth=SHARE_M, gather_samples=1, share_neighbors=share))
         images[share] = np.stack([np.array(mi.render(scene, spp=SHARE_SPP, seed=budget.block_seed(block, j)),
                                            dtype=np.float64) for j in range(runs)])
     return case, images[False], images[True]
@@ -215,13 +255,16 @@ def rmse_ratio_share_neighbors(block):
 def test_neighbour_sharing_passes_and_lowers_the_error():
     """share_neighbors averages the gather result over the neighbouring pixels that see
     the same triangle: both renders pass, and the per-pixel RMSE is lower with it (it
-    reduces only the gather part of the error; the light sample's part stays)."""
+    reduces only the gather part of the error, about 13 % of the MSE here with one gather ray;
+    the light sample's part, the same in both renders, stays)."""
     case, plain, shared = share_renders(0)
     exact = case.expected(-1)
     for images in (plain, shared):
         res = harness.compare(images, exact, bias=TRUNCATION_BIAS)
         assert res["passed"], res["failures"]
-    budget.ratio("qmc_lighttrace.rmse_ratio_share_neighbors", _rmse(plain, exact) / _rmse(shared, exact), 1.0, None)
+    # measured over 24 seed blocks: 1.056 .. 1.072 (median 1.065, log-SD 0.0044): sharing lowers the
+    # RMSE by ~6 % here; the bound asks for at least half of that
+    budget.ratio("qmc_lighttrace.rmse_ratio_share_neighbors", _rmse(plain, exact) / _rmse(shared, exact), 1.03, None)
 
 
 # ------------------------------------------------------------------ wrong images
@@ -230,8 +273,7 @@ def test_wrong_images_fail():
     known bias + the truncation): the renders pass against the exact image and fail the
     structure test against the mirrored image and an image with a 25 % too high
     contrast (both with the right mean), by the slope the exact image predicts."""
-    case = analytic.diffuse_sphere(0.5, geometry="sphere_mesh", resolution=RES)
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M)), LARGE_SPP, seed=7)
+    case, images = large_m_renders("diffuse_sphere_mesh")
     exact = case.expected(-1)
     bias = case.known_bias + TRUNCATION_BIAS
     ok = harness.compare(images, exact, bias=bias)
@@ -262,6 +304,11 @@ MIRROR_FACE = np.array([[-1, -1, -1], [-1, 1, -1], [-1, 1, 1], [-1, -1, 1]], dty
 #: is the mirror; no edge between two emitting faces is seen, directly (>= 0.47 away) or
 #: in the mirror (>= 0.28 away), so the light sample has no heavy tail (module docstring)
 MIRROR_VIEW = (([0.4, 0.4, 0.0], [-1.0, -1.0, 0.0], [0, 1, 0]), 30.0)
+#: M of the mirror-box renders: paths of up to M + 3 = 19 segments. Per hit the power
+#: decays like 0.574, the largest eigenvalue of the diffuse/mirror hit chain (a diffuse
+#: hit keeps a = 0.5 and reaches the mirror with form factor 0.2; a mirror hit keeps all
+#: and reaches a diffuse face): truncation ~ 0.574^19 / 0.426 = 6e-5 < TRUNCATION_BIAS
+MIRROR_M = 16
 
 
 def mirror_box(albedo=0.5, emission=0.5, resolution=RES):
@@ -333,11 +380,21 @@ def mirror_box_images(case, k=32):
     return average(mirror.astype(np.float64)), average(seen_ff), average(direct_ff)
 
 
+@functools.lru_cache(maxsize=None)
+def mirror_renders(mirror_depth):
+    """RUNS renders of mirror_box() with ``mirror_depth`` (computed once per session: the
+    mirror_depth = 0 test reuses the mirror_depth = 1 renders as its test of the test)."""
+    scene = mirror_box().scene(lighttrace(max_depth=MIRROR_M, mirror_depth=mirror_depth))
+    images = render_runs(scene, (2 if mirror_depth else 1) * SPP, seed=12 + mirror_depth)
+    images.setflags(write=False)
+    return images
+
+
 def test_mirror_box_is_a_furnace():
     """The scene of the mirror_depth tests: Mitsuba's path tracer sees L = Le / (1 - a)
     everywhere, through the mirror too."""
     case = mirror_box()
-    res = analytic.check(case, {"type": "path"}, spp=64, runs=RUNS, seed=11)
+    res = analytic.check(case, {"type": "path"}, spp=16, runs=RUNS, seed=11)
     assert res.passed, res
 
 
@@ -354,7 +411,7 @@ def test_mirror_depth_follows_the_mirror_but_the_gather_misses_light_via_mirrors
     light sample cannot reach emitters through mirrors."""
     case = mirror_box()
     a, L = 0.5, 1.0
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M, mirror_depth=1)), 2 * SPP, seed=12)
+    images = mirror_renders(1)
     fraction, seen_ff, _ = mirror_box_images(case)
     exact = case.expected(-1)
     finding = exact - a * L * seen_ff
@@ -377,7 +434,7 @@ def test_mirror_depth_zero_stops_eye_rays_at_the_mirror():
     in every run."""
     case = mirror_box()
     a, L = 0.5, 1.0
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M, mirror_depth=0)), SPP, seed=13)
+    images = mirror_renders(0)
     fraction, _, direct_ff = mirror_box_images(case)
     exact = case.expected(-1)
     expected = exact * (1.0 - fraction) - a * L * direct_ff
@@ -390,8 +447,9 @@ def test_mirror_depth_zero_stops_eye_rays_at_the_mirror():
     only_mirror = full[1:-1, 1:-1] & full[:-2, 1:-1] & full[2:, 1:-1] & full[1:-1, :-2] & full[1:-1, 2:]
     assert only_mirror.sum() >= 20, only_mirror.sum()
     assert np.all(images[:, only_mirror] == 0.0)
-    follow = render_runs(case.scene(lighttrace(max_depth=LARGE_M, mirror_depth=1)), 16, seed=13, runs=2)
-    assert np.all(follow[:, only_mirror] > 0.5)             # test of the test: with mirror_depth 1 they are lit
+    follow = mirror_renders(1)
+    # test of the test: with mirror_depth 1 they show at least the emission seen in the mirror (0.5)
+    assert np.all(follow[:, only_mirror] > 0.45)
 
 
 # ------------------------------------------------------------------ behaviour
@@ -402,13 +460,13 @@ def test_same_seed_same_image():
     assert np.allclose(a, b, rtol=1e-5, atol=1e-6) and not np.allclose(a, c, rtol=1e-3)
 
 
-@pytest.mark.parametrize("params, error, message", [
-    ({"epsilon": 0.0}, ValueError, "epsilon=0.0 must be > 0"),
-    ({"samples": 0}, ValueError, "samples=0 must be an integer >= 1"),
-    ({"sequence": "niederreiter"}, ValueError, "sequence='niederreiter'"),
-    ({"sequence": "halton", "max_depth": 200}, qmc.DimensionError, "needs 404 dimensions"),
+@pytest.mark.parametrize("params, message", [
+    ({"epsilon": 0.0}, "epsilon=0.0 is invalid; valid range: a finite number > 0"),
+    ({"samples": 0}, "samples=0 is invalid; valid range: an integer >= 1"),
+    ({"sequence": "niederreiter"}, "sequence='niederreiter' is invalid; valid range: one of 'sobol'"),
+    ({"sequence": "halton", "max_depth": 200}, "max_depth=200 needs 404 dimensions"),
 ])
-def test_bad_parameters(params, error, message):
+def test_bad_parameters(params, message):
     with pytest.raises(Exception, match=message):
         mi.load_dict(lighttrace(**params))
 

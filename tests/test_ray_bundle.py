@@ -1,10 +1,11 @@
 """Tests of the `ray_bundle` integrator (stochastic iteration with global ray bundles).
 
 Budgets (tests/budget.py, power rule): the analytic checks run many chains in lockstep
-(``rb()``: 32-64 chains, bundles of 16 x 16 lines, burn-in 8 plus a few averaged
-iterations, 16-32 runs) and reach a relative tolerance of 0.5-1.8 %. The paper's
-one-chain settings (``PAPER``) are kept where the test is about them: Hammersley
-directions (fig. 7) and the 1/sqrt(iterations) law of one chain.
+(``rb()``: 8-64 chains, bundles of 16 x 16 lines, 32 x 32 on the 1280-triangle sphere
+mesh, burn-in 8 plus 8-24 averaged iterations, 16-32 runs) and reach relative
+tolerances of 0.3-1.5 %. The paper's one-chain settings (``PAPER``) are kept where the
+test is about them: Hammersley directions (fig. 7) and the 1/sqrt(iterations) law of
+one chain.
 
 Burn-in: the image of an iteration misses the bounces beyond it, a bias that decays
 like the scene's albedo to the power of the burn-in. Measured (64 chains, 32 runs, mean
@@ -53,22 +54,24 @@ def check(name, cfg, runs=16, res=RES, seed=2, **kw):
 # its average does not change the irradiance anywhere: the only tolerance left is the
 # mesh-versus-sphere difference that the case itself documents (case.known_bias).
 # (case, integrator, runs, image resolution); the glossy cases (Phong lobes, directional
-# emitters) have the heaviest noise: 64 chains, 32 runs of an 8 x 8 image (pixels do not
-# matter for a constant exact image).
+# emitters) have the heaviest noise: 32-64 chains, 32 runs of an 8 x 8 image (pixels do not
+# matter for a constant exact image). On the sphere mesh a chain's 16 x 16 lines reach few
+# of its 1280 triangles: 32 x 32 lines lower the per-run SD from 1.2 % to 0.7 % (32 chains;
+# 64 chains x 16 x 16 lines would give 0.85 % at the same cost), and with first_shot and 8
+# chains the runs are heavy-tailed (excess kurtosis 13).
 CASES = [
     ("furnace_box", rb(64), 16, RES),
-    ("furnace_sphere_mesh", rb(32), 16, RES),
+    ("furnace_sphere_mesh", rb(32, resolution=32), 16, RES),
     ("furnace_sierpinski", rb(64), 16, RES),
     ("bekaert_box", rb(32, burn_in=16), 16, RES),
     ("bekaert_sierpinski", rb(32, burn_in=16), 16, RES),
-    ("diffuse_sphere_mesh", rb(32), 16, RES),
+    ("diffuse_sphere_mesh", rb(32, resolution=32), 24, RES),
     ("constant_brdf_phong_box", rb(64, burn_in=16), 32, 8),
-    ("sierpinski_phong_simulated", rb(64, burn_in=16), 32, 8),
+    ("sierpinski_phong_simulated", rb(32, burn_in=16), 32, 8),
     ("sierpinski_diffuse_exact", rb(64), 16, RES),
     ("sierpinski_diffuse_simulated", rb(64), 16, RES),
     ("constant_lightsource_box", rb(64, averaged=16, burn_in=24), 32, 8),
 ]
-CONFIG = {name: cfg for name, cfg, _, _ in CASES}
 
 
 @pytest.mark.parametrize("name,cfg,runs,res", CASES, ids=[c[0] for c in CASES])
@@ -77,44 +80,48 @@ def test_analytic_cases(name, cfg, runs, res):
     assert out.passed, out
 
 
-# constant_lightsource_sierpinski: its non-emitting surfaces reflect everything (burn-in
-# about 72) and the directional emitters' lobes make the chains' radiance very noisy:
-# measured relative tolerance 2.6 % (128 chains, 72 + 16 iterations, 32 runs, 20 s CPU),
-# 2.3 % (256 chains, 64 + 16, 32 runs, 28 s), 2.5 % (64 chains, 72 + 96, 32 runs, 35 s),
-# 2.1 % (32 chains, 72 + 128, 32 runs, 42 s); per-run SD 4.1 % at 64 chains, 64 + 16
-# iterations (128 runs, not heavy-tailed: skewness 0.24, excess kurtosis -0.04). It runs
-# only under a documented exception of tests/budget.py (EXCEPTIONS).
-LIGHTSOURCE_SIERPINSKI = [rb(128, averaged=16, burn_in=72),
-                          rb(128, averaged=16, burn_in=72, average_diffuse=True, first_shot=True, gather_nee=False)]
+def test_lightsource_sierpinski(request):
+    """constant_lightsource_sierpinski: its non-emitting surfaces reflect everything
+    (burn-in about 72, see above) and the chains' radiance is very noisy: per-run SD 4.1 %
+    at 64 chains, 64 + 16 iterations (128 runs; not heavy-tailed: skewness 0.24, excess
+    kurtosis -0.04); neither first_shot nor average_diffuse nor finer bundles lower it
+    (the noise is in the global directions). Measured relative tolerance (32 runs, CPU
+    seconds on a loaded machine): 2.6 % (128 chains, 72 + 16 iterations, 20 s), 2.3 %
+    (256 chains, 64 + 16, 28 s), 2.5 % (64 chains, 72 + 96, 35 s), 2.1 % (32 chains,
+    72 + 128, 42 s); with average_diffuse, first_shot, gather_nee=false 2.1 % (128 chains,
+    72 + 16, 39 s). It cannot reach 2 % at a sane cost: it runs only under a documented
+    exception of tests/budget.py (EXCEPTIONS)."""
+    if budget.limit_for(request.node.nodeid)[1] is None:
+        pytest.skip("constant_lightsource_sierpinski cannot reach the power rule's 2 % at a sane cost "
+                    "(2.1-2.6 % at 20-42 s CPU); runs once tests/budget.py EXCEPTIONS documents it")
+    out = check("constant_lightsource_sierpinski", rb(128, averaged=16, burn_in=72), 32, 8)
+    assert out.passed, out
 
 
-@pytest.mark.parametrize("cfg", LIGHTSOURCE_SIERPINSKI, ids=["plain", "average-fs-no_nee"])
-def test_lightsource_sierpinski(request, cfg):
-    limit, reason = budget.limit_for(request.node.nodeid)
-    if reason is None:
-        pytest.skip("constant_lightsource_sierpinski cannot reach the power rule's 2 %% at a sane cost "
-                    "(2.1-2.6 %% at 20-42 s CPU); runs once tests/budget.py EXCEPTIONS documents it")
-    res = check("constant_lightsource_sierpinski", cfg, 32, 8)
-    assert res.passed, res
-
-
-@pytest.mark.parametrize("extra", [{"estimate": "patch"}, {"bidirectional": False},
-                                   {"direction_sequence": "pi"},
-                                   {"stratify_chains": False, "estimate": "patch"},
-                                   {"stratify_chains": False, "bidirectional": False},
-                                   {"first_shot": True, "estimate": "patch"}],
+# one-way bundles (bidirectional=false) are 4-5x noisier: a patch receives radiance in half of
+# the iterations only (per-run SD 2.3 % against 0.5 % at 64 chains, 8 averaged iterations), and
+# only more averaged iterations help (128 chains: 3.2 %, 64 chains x 24 iterations: 1.3 %)
+@pytest.mark.parametrize("cfg,runs,res", [(rb(64, estimate="patch"), 16, RES),
+                                          (rb(64, averaged=24, bidirectional=False), 32, 8),
+                                          (rb(64, direction_sequence="pi"), 16, RES),
+                                          (rb(64, stratify_chains=False, estimate="patch"), 16, RES),
+                                          (rb(64, averaged=40, stratify_chains=False, bidirectional=False), 32, 8),
+                                          (rb(32, first_shot=True, estimate="patch"), 16, RES)],
                          ids=["patch", "one_way", "pi", "independent-patch", "independent-one_way", "first_shot-patch"])
-def test_variants_pass_the_furnace(extra):
-    res = check("furnace_box", rb(64, **extra), seed=4)
-    assert res.passed, res
+def test_variants_pass_the_furnace(cfg, runs, res):
+    out = check("furnace_box", cfg, runs, res, seed=4)
+    assert out.passed, out
 
 
 def test_hammersley_directions_are_wrong_independent_are_right():
-    """Paper figure 7, the paper's settings (one chain, 48 x 48 lines): the 1-uniform
-    Hammersley sequence of global directions gives a clearly wrong mean; independent
-    random directions pass the same check."""
-    good = check("bekaert_box", dict(PAPER, direction_sequence="independent"), 32, 8, seed=5)
-    bad = check("bekaert_box", dict(PAPER, direction_sequence="hammersley"), 16, 8, seed=5)
+    """Paper figure 7, the paper's settings (one chain, 48 x 48 lines, here 128
+    iterations): the 1-uniform Hammersley sequence of global directions gives a clearly
+    wrong mean (measured +5 %, z about 30); independent random directions pass the same
+    check (one chain: per-run SD 1.8 % at 64 iterations, so 128 iterations x 32 runs
+    for a tolerance of about 1.2 %)."""
+    paper = dict(PAPER, iterations=128)
+    good = check("bekaert_box", dict(paper, direction_sequence="independent"), 32, 8, seed=5)
+    bad = check("bekaert_box", dict(paper, direction_sequence="hammersley"), 16, 8, seed=5)
     assert good.passed, good
     assert not bad.passed and abs(bad.z) > 8, bad
 
@@ -165,7 +172,8 @@ def rmse_ratio_long_chain(block):
 def test_error_shrinks_like_inverse_sqrt_of_iterations():
     """One chain (the paper's algorithm): 4x the averaged iterations halve the RMSE.
     A ratio of 1 (iterations not averaged) or 4 (1/iterations) is outside the bounds."""
-    budget.ratio("ray_bundle.rmse_ratio_iterations", rmse_ratio_iterations(0), 1.3, 3.1)
+    # measured over 24 seed blocks: 1.73 .. 2.30 (median 1.94, log-SD 0.071)
+    budget.ratio("ray_bundle.rmse_ratio_iterations", rmse_ratio_iterations(0), 1.3, 2.9)
 
 
 def test_chains_are_independent_and_averaged():
@@ -175,8 +183,10 @@ def test_chains_are_independent_and_averaged():
     sharing their directions give 1.25 for the first ratio: excluded by its lower
     bound. The mean stays exact with independent chains (the stratified default is
     checked by test_analytic_cases)."""
-    budget.ratio("ray_bundle.rmse_ratio_chains", rmse_ratio_chains(0), 1.3, 3.1)
-    budget.ratio("ray_bundle.rmse_ratio_long_chain", rmse_ratio_long_chain(0), 0.6, 1.7)
+    # measured over 24 seed blocks: one / four 1.82 .. 2.48 (median 2.02, log-SD 0.076);
+    # long / four 0.94 .. 1.20 (median 1.01, log-SD 0.062)
+    budget.ratio("ray_bundle.rmse_ratio_chains", rmse_ratio_chains(0), 1.35, 3.0)
+    budget.ratio("ray_bundle.rmse_ratio_long_chain", rmse_ratio_long_chain(0), 0.7, 1.45)
     res = check("bekaert_sierpinski", rb(32, burn_in=16, stratify_chains=False), seed=7)
     assert res.passed, res
 
@@ -225,34 +235,34 @@ def test_stratified_direction_sets_cover_the_sphere_and_are_reshuffled():
 
 
 @functools.lru_cache(maxsize=None)
-def _stratified_rmses(block, chains, seeds):
-    """RMSE (furnace box, 8 x 8 pixels, the same ``seeds`` seeds for all three) of
-    independent chains, of stratified chains, and of stratified sets dealt in a fixed
-    order (the shuffle patched out with unittest.mock)."""
+def _direction_set_rmse(block, chains, n_seeds, variant):
+    """RMSE (furnace box, 8 x 8 pixels, seeds 0 .. ``n_seeds`` - 1 of ``block``: the same
+    for every variant) of ``chains`` chains with 'independent' directions, 'stratified'
+    sets, or stratified sets dealt in a 'fixed_order' (the shuffle patched out with
+    unittest.mock)."""
     from mi_plugins import sampling
     import mi_plugins.integrators.ray_bundle as ray_bundle_module
-    seeds = [budget.block_seed(block, j) for j in range(seeds)]
-    rmse = lambda **kw: furnace_rmse(rb(chains, **kw), seeds, 8)
-    independent, stratified = rmse(stratify_chains=False), rmse()
+    seeds = [budget.block_seed(block, j) for j in range(n_seeds)]
+    if variant == "independent":
+        return furnace_rmse(rb(chains, stratify_chains=False), seeds, 8)
+    if variant == "stratified":
+        return furnace_rmse(rb(chains), seeds, 8)
     with mock.patch.object(ray_bundle_module, "stratified_direction_sets",
                            functools.partial(sampling.stratified_direction_sets, shuffle=False)):
-        fixed_order = rmse()
-    return independent, stratified, fixed_order
+        return furnace_rmse(rb(chains), seeds, 8)
 
 
 @budget.ratio_statistic("ray_bundle.rmse_ratio_stratified")
 def rmse_ratio_stratified(block):
-    """Furnace box, 16 chains, 32 seeds: RMSE of independent over stratified chains."""
-    independent, stratified, fixed_order = _stratified_rmses(block, 16, 32)
-    return independent / stratified
+    """Furnace box, 16 chains, 64 seeds: RMSE of independent over stratified chains."""
+    return _direction_set_rmse(block, 16, 64, "independent") / _direction_set_rmse(block, 16, 64, "stratified")
 
 
 @budget.ratio_statistic("ray_bundle.rmse_ratio_fixed_order")
 def rmse_ratio_fixed_order(block):
     """Furnace box, 256 chains, 16 seeds: RMSE of stratified sets dealt in a fixed order
     over that of the shuffled ones (the more chains, the more a common rotation costs)."""
-    independent, stratified, fixed_order = _stratified_rmses(block, 256, 16)
-    return fixed_order / stratified
+    return _direction_set_rmse(block, 256, 16, "fixed_order") / _direction_set_rmse(block, 256, 16, "stratified")
 
 
 def test_stratified_chains_lower_the_error():
@@ -260,17 +270,19 @@ def test_stratified_chains_lower_the_error():
     of the test: stratified sets dealt in a fixed order (every chain turned by the same
     random rotation between iterations) correlate the chains and lose the gain (worse
     than independent chains)."""
-    budget.ratio("ray_bundle.rmse_ratio_stratified", rmse_ratio_stratified(0), 1.15, None)
-    budget.ratio("ray_bundle.rmse_ratio_fixed_order", rmse_ratio_fixed_order(0), 1.1, None)
+    # measured over 24 seed blocks: independent / stratified 1.38 .. 1.70 (median 1.55, log-SD
+    # 0.061); fixed order / stratified 3.14 .. 6.31 (median 4.36, log-SD 0.167)
+    budget.ratio("ray_bundle.rmse_ratio_stratified", rmse_ratio_stratified(0), 1.12, None)
+    budget.ratio("ray_bundle.rmse_ratio_fixed_order", rmse_ratio_fixed_order(0), 1.8, None)
 
 
 # first_shot: direct light by next-event estimation, bundles carry reflected radiance only
 FIRST_SHOT_CASES = [
     ("furnace_box", rb(32), 16, RES),
-    ("furnace_sphere_mesh", rb(8, averaged=16), 16, RES),
+    ("furnace_sphere_mesh", rb(16, resolution=32), 16, RES),
     ("bekaert_sierpinski", rb(16, burn_in=16), 16, RES),
-    ("diffuse_sphere_mesh", rb(8, averaged=16), 16, RES),
-    ("constant_brdf_phong_box", rb(32, burn_in=16), 32, 8),
+    ("diffuse_sphere_mesh", rb(16, resolution=32), 16, RES),
+    ("constant_brdf_phong_box", rb(32, burn_in=16), 16, 8),
     ("sierpinski_diffuse_simulated", rb(16), 16, RES),
     ("constant_lightsource_box", rb(64, averaged=16, burn_in=24), 32, 8),
 ]
@@ -297,7 +309,8 @@ def test_first_shot_halves_the_error():
     """Same iterations, furnace sphere mesh: the light sample (with MIS) replaces the
     random-direction estimate of the direct light; measured RMSE ratio 2.0 (furnace
     sphere mesh), 1.7 (diffuse sphere), 1.8 (Sierpinski)."""
-    budget.ratio("ray_bundle.rmse_ratio_first_shot", rmse_ratio_first_shot(0), 1.4, None)
+    # measured over 24 seed blocks: 1.93 .. 2.01 (median 2.00, log-SD 0.008: same seeds)
+    budget.ratio("ray_bundle.rmse_ratio_first_shot", rmse_ratio_first_shot(0), 1.8, None)
 
 
 def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
@@ -318,8 +331,9 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
 def test_hide_emitters_removes_the_seen_emission(first_shot):
     """Furnace box: with hide_emitters the exact image is L - Le = expected(-1) -
     expected(1). Test of the test: the same renders fail against L (z < -8)."""
-    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    images = harness.render_runs(case.scene(rb(64, averaged=16, first_shot=first_shot, hide_emitters=True)), 1, 16, 6)
+    case = analytic.furnace(0.5, 0.5, "box", resolution=8)
+    cfg = rb(32 if first_shot else 64, averaged=16, first_shot=first_shot, hide_emitters=True)
+    images = harness.render_runs(case.scene(cfg), 1, 32, 6)
     hidden = harness.compare(images, case.expected(-1) - case.expected(1))
     assert hidden["passed"], hidden["failures"]
     shown = harness.compare(images, case.expected(-1))
@@ -333,18 +347,23 @@ def test_wrong_images_fail(estimate):
     structure test, against the mirrored exact image (right mean, wrong place) and
     against one with 1.25x its contrast."""
     case = analytic.cases()["diffuse_sphere_mesh"](resolution=RES)
-    cfg = rb(32, estimate=estimate)
+    # the most powerful configuration: first shot and averaged diffuse patches (the patch
+    # estimate needs 16 chains for a tolerance of 0.7 %; 8 chains: 1.3-1.4 %, 16 x 16 lines: 2.5 %)
+    cfg = rb(8 if estimate == "gather" else 16, resolution=32, first_shot=True, average_diffuse=True,
+             estimate=estimate)
     images = harness.render_runs(case.scene(cfg), 1, 16, 8)
     exact = case.expected()
     right = harness.compare(images, exact, bias=case.known_bias)
     assert right["passed"], right["failures"]
+    # the part of the slope tolerance that the known mesh bias takes
+    bias_slope = right["slope_tolerance"] - right["z_limit"] * right["slope_se"]
     mean = exact.mean()
     for wrong, slope in ((exact[:, ::-1], None), (mean + 1.25 * (exact - mean), 0.8)):
         out = harness.compare(images, wrong, bias=case.known_bias)
         assert not out["passed"] and any("image structure" in f for f in out["failures"]), out["failures"]
-        assert abs(out["slope"] - 1) > 8 * out["slope_se"], out
+        assert abs(out["slope"] - 1) > 8 * out["slope_se"], {k: out[k] for k in ("slope", "slope_se", "failures")}
         if slope is not None:       # regressed on 1.25x the structure, the right image has slope 1/1.25
-            budget.close(out["slope"], slope, out["slope_se"], what="slope on 1.25x the contrast")
+            budget.close(out["slope"], slope, out["slope_se"], slack=0.8 * bias_slope, what="slope on 1.25x contrast")
 
 
 # average_diffuse: final gathering from the diffuse patches' averages over chains and iterations
@@ -364,8 +383,8 @@ AVERAGE_CASES = [("furnace_box", {}), ("furnace_sphere_mesh", {"first_shot": Tru
 #: chains, averaged iterations, burn-in, runs, image resolution per case
 AVERAGE_BUDGET = {"furnace_box": (16, 8, 8, 16, RES), "furnace_sphere_mesh": (8, 8, 8, 16, RES),
                   "bekaert_sierpinski": (16, 8, 16, 16, RES), "diffuse_sphere_mesh": (8, 8, 8, 16, RES),
-                  "sierpinski_diffuse_simulated": (16, 8, 8, 16, RES),
-                  "constant_brdf_phong_box": (32, 8, 16, 32, 8), "constant_lightsource_box": (64, 16, 24, 32, 8)}
+                  "sierpinski_diffuse_simulated": (8, 8, 8, 16, RES),
+                  "constant_brdf_phong_box": (32, 8, 16, 32, 8), "constant_lightsource_box": (32, 16, 24, 32, 8)}
 
 
 @pytest.mark.parametrize("name,extra", AVERAGE_CASES,
@@ -377,11 +396,16 @@ def test_average_diffuse_analytic_cases(name, extra):
     assert out.passed, out
 
 
-@pytest.mark.parametrize("extra", [{"estimate": "patch"}, {"bidirectional": False},
-                                   {"estimate": "patch", "first_shot": True, "bidirectional": False}])
-def test_average_diffuse_variants_pass_the_furnace(extra):
-    res = check("furnace_sphere_mesh", rb(8, average_diffuse=True, **extra), seed=4)
-    assert res.passed, res
+@pytest.mark.parametrize("name,cfg,runs,res", [
+    ("furnace_sphere_mesh", rb(32, averaged=16, average_diffuse=True, estimate="patch"), 32, 8),
+    # one way (see test_variants_pass_the_furnace); on the sphere mesh 32 chains x 24 averaged
+    # iterations still leave a per-run SD of 2.4 % (skewed): the box, 64 chains
+    ("furnace_box", rb(64, averaged=24, average_diffuse=True, bidirectional=False), 32, 8),
+    ("furnace_box", rb(32, averaged=24, average_diffuse=True, estimate="patch", first_shot=True,
+                       bidirectional=False), 32, 8)], ids=["patch", "one_way", "patch-fs-one_way"])
+def test_average_diffuse_variants_pass_the_furnace(name, cfg, runs, res):
+    out = check(name, cfg, runs, res, seed=4)
+    assert out.passed, out
 
 
 @budget.ratio_statistic("ray_bundle.rmse_ratio_average_diffuse")
@@ -397,7 +421,8 @@ def rmse_ratio_average_diffuse(block):
 
 def test_average_diffuse_lowers_the_error():
     """The average over chains and iterations replaces one chain's stored value."""
-    budget.ratio("ray_bundle.rmse_ratio_average_diffuse", rmse_ratio_average_diffuse(0), 2.5, None)
+    # measured over 24 seed blocks: 5.98 .. 13.2 (median 8.96, log-SD 0.20)
+    budget.ratio("ray_bundle.rmse_ratio_average_diffuse", rmse_ratio_average_diffuse(0), 3.0, None)
 
 
 @pytest.mark.parametrize("first_shot,gather_nee,averaged", [(False, True, "L"), (True, True, "L"), (True, False, "R")],
@@ -432,9 +457,9 @@ def test_gather_nee_splits_a_patch_constant_radiance():
     parts are not: the direct light T Le varies across a face (the neighbouring faces
     emit differently) and the rest, T (L - Le) - T Le, the other way. gather_nee=true
     takes the first part at the gathered point and the second from its patch average,
-    so the discretisation is no longer exact: the image mean is 0.64 % low (measured
-    0.99400 +- 0.00018 here, 64 runs; 0.9936 at 16 x 16 pixels); gather_nee=false
-    averages the constant sum and passes."""
+    so the discretisation is no longer exact: the image mean is 0.6 % low (measured
+    0.99397 +- 0.00010 at these 8 x 8 pixels, 224 runs; 0.9936 at 16 x 16 pixels; z about
+    -20 with 16 runs); gather_nee=false averages the constant sum and passes."""
     case = analytic.cases()["bekaert_box"](resolution=8)
     cfg = rb(32, averaged=16, burn_in=16, first_shot=True, average_diffuse=True)
     split = analytic.check(case, cfg, spp=1, runs=16, seed=1)
@@ -471,7 +496,15 @@ def test_average_diffuse_progress_counts_the_final_gathering():
     integ.progress_callback = None
     assert integ.iterations_done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.05
     a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
-    assert np.array_equal(a, b)
+    assert_same_image(a, b)
+
+
+def assert_same_image(a, b):
+    """A fixed seed gives the same image, up to the order of float additions: the
+    scatter-adds reduce per-core copies (dr.ReduceMode.Expand) in an order that depends
+    on the thread schedule (bitwise equal on an idle machine; a difference in the last
+    bits was seen once under load)."""
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
 
 
 def test_non_mesh_shape_is_rejected():
@@ -498,8 +531,8 @@ def test_delta_surface_warns():
 def test_fixed_seed_is_deterministic_and_progress_stops():
     scene = analytic.furnace(0.5, 0.5, "box", resolution=RES).scene(dict(PAPER, iterations=6, burn_in=1))
     a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
-    assert np.array_equal(a, b)
-    assert not np.array_equal(a, np.array(mi.render(scene, seed=budget.seed(6), spp=1)))
+    assert_same_image(a, b)
+    assert not np.allclose(a, np.array(mi.render(scene, seed=budget.seed(6), spp=1)), rtol=1e-3)
     integ = scene.integrator()
     integ.progress_callback = lambda done, total: done < 3
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(0)))

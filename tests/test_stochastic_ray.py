@@ -1,11 +1,15 @@
 """Tests of the `stochastic_ray` integrator (stochastic iteration, single-ray operator).
 
-Budgets: a render runs ``spp * width * height`` chains in lockstep, and a step of 16k
-chains costs hardly more than a step of 256 (the cost is per iteration), so the checks
-use many chains (spp 32-256), few averaged steps and 16 runs: every passing check
-detects a relative error of the mean below 2 % (typically 0.5-1.5 %) and, where the
-exact image varies, a contrast error below 0.1.
+Budgets: a render runs ``spp * width * height`` chains in lockstep, and the cost of a
+step grows far less than linearly with the number of chains (per-iteration overhead),
+so the checks use many chains (spp 16-256), few averaged steps and 16 runs: every
+passing check detects a relative error of the mean below 2 % (measured 0.3-1.5 % over
+seed offsets 0-2) and, where the exact image varies, a contrast error below 0.1. The
+estimator has light tails (480 runs of three cases: no run beyond 3.9 SD), so the
+Student-t checks hold their level.
 """
+import functools
+
 import numpy as np
 import pytest
 
@@ -29,15 +33,15 @@ BASE = {"iterations": 16, "burn_in": 8}
 CASES = [
     ("furnace_box", BASE, 32, RES),
     ("furnace_sphere_mesh", BASE, 32, RES),
-    ("furnace_sierpinski", BASE, 32, RES),
+    ("furnace_sierpinski", BASE, 64, RES),
     ("bekaert_box", BASE, 32, RES),
     ("bekaert_sierpinski", {"iterations": 32, "burn_in": 24}, 32, RES),
     ("diffuse_sphere", BASE, 32, RES),
     ("mirror_sphere", BASE, 16, RES),
     ("constant_brdf_diffuse_sphere", {"iterations": 48, "burn_in": 32}, 256, 8),
     ("constant_brdf_phong_box", {"iterations": 24, "burn_in": 16}, 64, RES),
-    ("sierpinski_phong_simulated", {"iterations": 24, "burn_in": 16}, 64, RES),
-    ("constant_lightsource_box", {"iterations": 40, "burn_in": 32}, 128, RES),
+    ("sierpinski_phong_simulated", {"iterations": 24, "burn_in": 16}, 128, RES),
+    ("constant_lightsource_box", {"iterations": 32, "burn_in": 24}, 128, RES),
     ("constant_lightsource_sierpinski", {"iterations": 72, "burn_in": 64}, 64, RES),
 ]
 
@@ -65,18 +69,26 @@ def test_analytic_cases(name, extra, spp, res):
     assert res.passed, res
 
 
+@functools.lru_cache(maxsize=None)
+def truncated_renders(depth):
+    """(furnace box case, 16 renders with max_depth ``depth``), computed once per session."""
+    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
+    images = render_runs(case.scene(integrator(max_depth=depth, **BASE)), 32, seed=1)
+    images.setflags(write=False)
+    return case, images
+
+
 @pytest.mark.parametrize("depth", [1, 2, 3])
 def test_truncated_depths(depth):
-    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    res = analytic.check(case, integrator(max_depth=depth, **BASE), spp=32, runs=16, seed=1)
-    assert res.passed, res
+    case, images = truncated_renders(depth)
+    res = harness.compare(images, case.expected(depth))
+    assert res["passed"], res["failures"]
 
 
 def test_truncated_depth_against_untruncated_value_fails():
     """Test of the test: depth-3 renders pass against the depth-3 value (7/8 of the
     furnace's) and fail against the unbounded value by the 12.5 % the truncation takes."""
-    case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    images = render_runs(case.scene(integrator(max_depth=3, **BASE)), 32, seed=1)
+    case, images = truncated_renders(3)
     ok = harness.compare(images, case.expected(3))
     assert ok["passed"], ok["failures"]
     bad = harness.compare(images, case.expected(-1))
@@ -105,7 +117,7 @@ def test_hide_emitters():
     L - Le = expected(-1) - expected(1). Test of the test: the same renders fail against
     the full radiance (they are half of it)."""
     case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    images = render_runs(case.scene(integrator(hide_emitters=True, **BASE)), 32, seed=5)
+    images = render_runs(case.scene(integrator(hide_emitters=True, **BASE)), 64, seed=5)
     exact = case.expected(-1) - case.expected(1)
     ok = harness.compare(images, exact)
     assert ok["passed"], ok["failures"]
@@ -143,7 +155,7 @@ def test_wrong_images_fail():
     exact image and fail the structure test against the mirrored image and an image
     with a 25 % too high contrast (both have the right mean)."""
     case = analytic.diffuse_sphere(0.5, resolution=RES)
-    images = render_runs(case.scene(integrator(**BASE)), 32, seed=7)
+    images = render_runs(case.scene(integrator(**BASE)), 64, seed=7)
     assert_structure_failures(images, case.expected(-1))
 
 
