@@ -7,5 +7,8 @@
 PLUGINS = {
     'qmc_lighttrace': 'qmc_lighttrace:QMCLightTraceIntegrator',
     'stochastic_ray': 'stochastic_ray:StochasticRayIntegrator',
-    'ray_bundle': 'ray_bundle:RayBundleIntegrator',
+    'ray_bundle': 'ray_bundle.integrator:RayBundleIntegrator',
 }
+
+#: modules holding base classes of the plugins above (reloaded first on a variant switch)
+BASES = ["core"]

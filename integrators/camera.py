@@ -19,7 +19,9 @@ class CameraPass:
     ``sampler`` (a seeded clone of the sensor's sampler). ``ray``, ``weight`` (the
     sensor's importance weight), ``pos`` (film position to splat at), ``pixel`` (flat
     index of the sample's pixel in the crop window), ``sampler`` (draw further numbers
-    from it) and ``count`` (lanes)."""
+    from it), ``count`` (lanes: ``per_pixel`` consecutive lanes per pixel of the
+    ``grid_width`` x ``grid_height`` grid, the crop window plus the filter's border when
+    the film samples it)."""
 
     def __init__(self, frame, sampler, per_pixel):
         film, sensor = frame.film, frame.sensor
@@ -46,6 +48,7 @@ class CameraPass:
         self.sampler = sampler
         self.count = dr.width(idx)
         self.per_pixel = int(per_pixel)
+        self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
 
 
 class SpecularChain:

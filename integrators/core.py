@@ -51,6 +51,7 @@ class Frame:
     def __init__(self, scene, sensor, spp, seed):
         self.scene, self.sensor, self.spp, self.seed = scene, sensor, int(spp), int(seed)
         self.film = sensor.film()
+        self.film.prepare([])
         size = self.film.crop_size()
         self.width, self.height = int(size[0]), int(size[1])
         self.pixels = self.width * self.height
@@ -100,18 +101,33 @@ class Frame:
             self._blocks[name] = (block, scale)
         return self._blocks[name][0]
 
-    def put_camera(self, cam, value, name="camera", active=True):
-        """Average ``value`` (Color3f per camera sample of ``cam``) into a camera block."""
-        block = self.camera_block(name)
-        block.put(cam.pos, cam.ray.wavelengths, mi.Color3f(value) * cam.weight, dr.select(active, 1.0, 0.0), 1.0,
-                  active)
+    def _put(self, block, pos, rgb, alpha, weight, active=True):
+        """Splat RGB values into ``block`` in the film's channel layout (as Mitsuba's
+        ADIntegrator does: films with special channels prepare their own samples)."""
+        film = self.film
+        if dr.all(mi.has_flag(film.flags(), mi.FilmFlags.Special)):
+            values = film.prepare_sample(rgb, dr.zeros(mi.Color0f), block.channel_count(), weight=weight, alpha=alpha)
+        elif mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+            values = [rgb.x, rgb.y, rgb.z, mi.Float(alpha), mi.Float(weight)]
+        else:
+            values = [rgb.x, rgb.y, rgb.z, mi.Float(weight)]
+        block.put(pos, values, active)
+
+    def put_camera(self, cam, value, name="camera", alpha=1.0):
+        """Average ``value`` (Color3f per camera sample of ``cam``) into a camera block
+        (every sample counts, with weight 1)."""
+        self._put(self.camera_block(name), cam.pos, mi.Color3f(value) * cam.weight, alpha, 1.0)
 
     def put_light(self, uv, value, name="light", scale=1.0, active=True):
         """Splat ``value`` at film positions ``uv`` into a light block (weight 0)."""
         block = self.light_block(name, scale)
-        block.put(uv + mi.Vector2f(block.offset()), dr.zeros(mi.Color0f), mi.Color3f(value), 1.0, 0.0, active)
+        self._put(block, uv + mi.Vector2f(block.offset()), mi.Color3f(value), 1.0, 0.0, active)
 
     def state(self):
+        """What an iteration's dr.eval must evaluate: the blocks, and the camera sampler's
+        state (scheduled: otherwise every pass's kernel would recompute its history)."""
+        if self._sampler is not None:
+            self._sampler.schedule_state()
         return [block.tensor() for block, _ in self._blocks.values()]
 
     def commit(self):
@@ -170,6 +186,9 @@ class CoreIntegrator(mi.SamplingIntegrator):
 
     #: the registered plugin name (set by each plugin)
     plugin = "integrator"
+    #: True when render_frame drives its own steps (self.steps); otherwise a render is
+    #: one step
+    iterative = False
 
     def __init__(self, props):
         super().__init__(props)
@@ -207,10 +226,13 @@ class CoreIntegrator(mi.SamplingIntegrator):
         spp = int(spp) if spp else int(sensor.sampler().sample_count())
         if spp < 1:
             raise ValueError("%s: spp=%d must be >= 1" % (self.plugin, spp))
-        self.progress = Progress()
         frame = Frame(scene, sensor, spp, seed)
         with dr.suspend_grad():
-            self.render_frame(frame)
+            if self.iterative:
+                self.render_frame(frame)
+            else:
+                for _ in self.steps(1, 0).iterations():
+                    self.render_frame(frame)
             return frame.develop(develop)
 
     def render_frame(self, frame):

@@ -11,11 +11,14 @@ problem in the radiosity setting" (1994):
    diffuse reflectance at the hit point. Optional adaptive termination (section 4):
    batches of ``batch`` paths until the area-weighted change Delta E of the L_k
    stays below ``epsilon`` for ``patience`` consecutive batches.
-2. *Render*: per pixel ``spp`` eye rays (ideal mirrors and dielectrics followed);
-   at the first non-delta hit, L = Le + direct light by light sampling + indirect
-   light from ``gather_samples`` cosine-distributed final-gather rays that read the
-   L_k of the triangle they hit (optionally averaged over the 8 neighbouring pixels
-   that see the same triangle).
+2. *Render*: per pixel ``spp`` eye rays from the sensor's sampler (ideal mirrors and
+   dielectrics followed, ``mirror_depth`` bounces at most); at the first non-delta hit,
+   L = Le + direct light (one light sample and one BSDF sample, combined by multiple
+   importance sampling: a light sample alone has infinite variance where emitting
+   surfaces meet) + indirect light from ``gather_samples`` cosine-distributed
+   final-gather rays that read the L_k of the triangle they reach (a gather ray that
+   meets a mirror follows it and takes the full radiance behind it), optionally averaged
+   over the 8 neighbouring pixels that see the same triangle.
 
 Truncation: the image contains the light of paths with up to M + 3 segments
 (Mitsuba's ``max_depth = M + 3``): the analytic checks compare with that value.
@@ -34,8 +37,9 @@ Truncation: the image contains the light of paths with up to M + 3 segments
    * - scramble
      - bool
      - true
-     - Owen scrambling (Sobol) / random digit permutations (Halton, Faure); seeds
-       for lcg / independent; the render seed selects the randomisation
+     - Owen scrambling (Sobol), random digit permutations (Halton), Faure's
+       permutations with random digit shifts (Faure); seeds for lcg / independent; the
+       render seed selects the randomisation
    * - max_depth
      - int >= 0
      - 6
@@ -81,20 +85,24 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc
-from mi_plugins.sampling import direct_light
+from mi_plugins import qmc, seeds
+from mi_plugins.integrators.camera import specular_chain
+from mi_plugins.integrators.core import CoreIntegrator
 from mi_plugins.meshtable import MeshTable
-from mi_plugins.integrators.stochastic_common import check_variant
 from mi_plugins.params import Params
+from mi_plugins.sampling import direct_light
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
 
 
-class QMCLightTraceIntegrator(mi.SamplingIntegrator):
+class QMCLightTraceIntegrator(CoreIntegrator):
+    plugin = "qmc_lighttrace"
+
     def __init__(self, props):
-        super().__init__(props)
-        check_variant("qmc_lighttrace")
         p = Params(props, "qmc_lighttrace")
+        hide_emitters = p.bool("hide_emitters", False)   # before the base class reads it with its own check
+        super().__init__(props)
+        self.hide_emitters = hide_emitters
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
         self.max_depth = p.int("max_depth", 6, lo=0)
@@ -208,78 +216,59 @@ class QMCLightTraceIntegrator(mi.SamplingIntegrator):
         return np.array(value, dtype=np.float64).T
 
     # ------------------------------------------------------------------ rendering
-    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
-        self.preprocess(scene, seed)
-        reflected = [mi.Float(self.reflected_radiance[:, c]) for c in range(3)]
-        film = sensor.film()
-        size = film.crop_size()
-        width, height = int(size[0]), int(size[1])
-        spp = spp or sensor.sampler().sample_count()
-        n = width * height * spp
-        sampler = sensor.sampler().clone()
-        sampler.set_sample_count(spp)
-        sampler.set_samples_per_wavefront(spp)
-        sampler.seed(seed, n)
-        lane = dr.arange(mi.UInt32, n)
-        pixel = lane // spp
-        px, py = pixel % width, pixel // width
-        offset = sampler.next_2d()
-        pos = mi.Point2f((mi.Float(px) + offset.x) / width, (mi.Float(py) + offset.y) / height)
-        ray, ray_weight = sensor.sample_ray(0.0, sampler.next_1d(), pos, sampler.next_2d())
-        value, gather, tri = self._eye_radiance(scene, sampler, ray, reflected)
+    def render_frame(self, frame):
+        scene = frame.scene
+        self.preprocess(scene, frame.seed)
+        reflected = mi.Color3f(*(mi.Float(self.reflected_radiance[:, c]) for c in range(3)))
+        frame.camera_passes(frame.spp, 1)
+        cam = frame.camera_pass()
+        rng = seeds.pcg(cam.count, frame.seed, "camera_path")
+        path = specular_chain(scene, cam.ray, rng, max_bounces=self.mirror_depth, hide_emitters=self.hide_emitters)
+        si = scene.ray_intersect(path.ray, path.reached)
+        active = path.reached & si.is_valid()
+        bsdf = si.bsdf(path.ray)
+        direct = self._direct(scene, cam.sampler, si, bsdf, active)
+        gather = self._gather(scene, cam.sampler, rng, si, bsdf, active, reflected)
         if self.share_neighbors:
-            gather = self._share(gather, tri, width, height, spp)
-        value = (value + gather) * ray_weight
-        image = dr.zeros(mi.Color3f, width * height)
-        dr.scatter_reduce(dr.ReduceOp.Add, image, value / spp, pixel)
-        arr = np.array(image, dtype=np.float32).T.reshape(height, width, 3)
-        return mi.TensorXf(arr)
+            tri = dr.select(active, self.table.triangle_index(si.shape, si.prim_index), 0xFFFFFFFF)
+            gather = self._share(gather, tri, cam)
+        frame.put_camera(cam, path.emission + path.throughput * (direct + gather))
 
-    def _eye_radiance(self, scene, sampler, ray, reflected):
-        """(direct part, final-gather part, first non-delta triangle) of each eye ray."""
-        table = self.table
-        ctx = mi.BSDFContext()
-        throughput = dr.ones(mi.Color3f, dr.width(ray.o))
-        si = scene.ray_intersect(ray)
-        active = si.is_valid()
-        for _ in range(self.mirror_depth):  # follow ideal mirrors / glass
-            bsdf = si.bsdf(ray)
-            delta = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
-            if not dr.any(delta):
-                break
-            bs, weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), delta)
-            ray = dr.select(delta, si.spawn_ray(si.to_world(bs.wo)), ray)
-            throughput = dr.select(delta, throughput * weight, throughput)
-            si = dr.select(delta, scene.ray_intersect(ray, delta), si)
-            active &= si.is_valid()
-            dr.eval(ray, throughput, si, active)
-        bsdf = si.bsdf(ray)
-        emitted = dr.select(active, si.emitter(scene).eval(si, active), 0.0)
-        direct = self._direct(scene, sampler, si, bsdf, active)
+    def _direct(self, scene, sampler, si, bsdf, active):
+        """L0 reflected once (T_f L0): one light sample and one BSDF sample, combined by
+        multiple importance sampling (a light sample alone has infinite variance where
+        emitting surfaces meet, e.g. at the edges of a furnace)."""
+        light_sample = sampler.next_2d()
+        return direct_light(scene, si, bsdf, light_sample, active, (sampler.next_1d(), sampler.next_2d()))
+
+    def _gather(self, scene, sampler, rng, si, bsdf, active, reflected):
+        """SR cosine-distributed final-gather rays reading the reflected radiance L_k of the
+        triangle they reach; a ray that reaches a purely specular surface follows it and
+        takes the full radiance found behind it (its emission is not covered by the light
+        sample)."""
+        table, ctx = self.table, mi.BSDFContext()
         gather = dr.zeros(mi.Color3f, dr.width(si.p))
         for _ in range(self.gather_samples):  # SR gather rays (a small constant)
             d = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
             pdf = mi.warp.square_to_cosine_hemisphere_pdf(d)
-            f = bsdf.eval(ctx, si, d, active)
-            hit = scene.ray_intersect(si.spawn_ray(si.to_world(d)), active & (pdf > 0))
-            k = table.triangle_index(hit.shape, hit.prim_index)
-            ok = hit.is_valid() & active & (pdf > 0)
-            stored = mi.Color3f(*[dr.gather(mi.Float, reflected[c], k, ok) for c in range(3)])
-            gather += dr.select(ok, f / dr.select(ok, pdf, 1.0) * stored, 0.0)
-        gather /= self.gather_samples
-        tri = dr.select(active, table.triangle_index(si.shape, si.prim_index), 0xFFFFFFFF)
-        return throughput * (emitted + direct), throughput * gather, tri
+            ok = active & (pdf > 0)
+            weight = mi.Color3f(bsdf.eval(ctx, si, d, ok)) / dr.select(ok, pdf, 1.0)
+            ray = si.spawn_ray(si.to_world(d))
+            chain = specular_chain(scene, ray, rng, max_bounces=self.mirror_depth)
+            via_mirror = ok & (chain.depth > 0)
+            end = scene.ray_intersect(chain.ray, ok & chain.reached)
+            k = table.triangle_index(end.shape, end.prim_index)
+            stored = dr.gather(mi.Color3f, reflected, k, ok & chain.reached & end.is_valid())
+            stored = dr.select(ok & chain.reached & end.is_valid(), stored, 0.0)
+            value = dr.select(via_mirror, chain.emission + chain.throughput * stored, stored)
+            gather += dr.select(ok, weight * value, 0.0)
+        return gather / self.gather_samples
 
-    def _direct(self, scene, sampler, si, bsdf, active):
-        """One light sample: L0 reflected once (T_f L0), visibility-tested."""
-        return direct_light(scene, si, bsdf, sampler.next_2d(), active)
-
-    def _share(self, gather, tri, width, height, spp):
+    def _share(self, gather, tri, cam):
         """Average each gather result with those of the 8 neighbouring pixels (same sample
         number) whose eye ray hit the same triangle."""
-        lane = dr.arange(mi.UInt32, width * height * spp)
+        width, height, spp = cam.grid_width, cam.grid_height, cam.per_pixel
+        lane = dr.arange(mi.UInt32, cam.count)
         pixel, s = lane // spp, lane % spp
         x, y = mi.Int32(pixel % width), mi.Int32(pixel // width)
         total, count = dr.zeros(mi.Color3f, dr.width(lane)), dr.zeros(mi.Float, dr.width(lane))
@@ -292,10 +281,6 @@ class QMCLightTraceIntegrator(mi.SamplingIntegrator):
                 total += dr.select(same, dr.gather(mi.Color3f, gather, other, same), 0.0)
                 count += dr.select(same, 1.0, 0.0)
         return dr.select(count > 0, total / dr.maximum(count, 1.0), gather)
-
-    def sample(self, scene, sampler, ray, medium=None, active=True):
-        raise RuntimeError("qmc_lighttrace renders whole images (preprocess + final gathering); "
-                           "use mi.render(scene)")
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, samples=%d]" % (

@@ -4,11 +4,11 @@ Works with every integrator: pass k renders ``spp_k`` samples with its own seed,
 and the image is the sample-weighted average of the finished passes (for a
 progressive integrator of this package each pass is an independent run).
 
-Iterative integrators (``stochastic_ray``, ``ray_bundle``: they have a
-``progress_callback`` attribute and an ``iteration_count(spp)`` method) report every
-finished iteration: the progress bar counts iterations, and Ctrl-C inside a pass keeps
-the iterations of that pass finished so far, weighted by the fraction of the pass's
-averaged iterations they make up.
+The package's integrators (their ``progress`` is a :class:`mi_plugins.progress.Progress`)
+report every finished step: the progress bar counts steps (iterations of
+``stochastic_ray`` and ``ray_bundle``), and Ctrl-C inside a pass keeps the steps of
+that pass finished so far, weighted by the fraction of the pass's averaged iterations
+they make up.
 """
 import signal
 import threading
@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import mitsuba as mi
 import numpy as np
+
+from mi_plugins.progress import Progress
 
 
 @dataclass
@@ -51,7 +53,8 @@ def scene_spp(scene):
 
 
 def _iterative(integrator):
-    return hasattr(integrator, "progress_callback") and hasattr(integrator, "iteration_count")
+    """True for the package's integrators, which report their steps."""
+    return isinstance(getattr(integrator, "progress", None), Progress)
 
 
 def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, callback=None):
@@ -90,12 +93,13 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
                 raise
             share = 1.0
             if iterative:
-                iterations_done += integrator.iterations_done
-                share = integrator.averaged_fraction
+                progress = integrator.progress
+                iterations_done += progress.done
+                share = progress.averaged_fraction
             if share > 0:
                 accum = img * part * share if accum is None else accum + img * part * share
                 weight += part * share
-            if iterative and integrator.interrupted:
+            if iterative and progress.interrupted:
                 partial = share
                 raise KeyboardInterrupt
             done += 1

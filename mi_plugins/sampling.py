@@ -8,14 +8,9 @@
 - :func:`sample_hemisphere` / :func:`hemisphere_pdf`: the direction strategies of
   the simulated-emission estimators.
 - :func:`direct_light`: next-event estimation reflected by a BSDF: one visibility-tested
-  light sample (the final gathering of ``qmc_lighttrace``), or a light and a BSDF
-  sample combined by MIS (the first shot of ``ray_bundle``).
-- :func:`stratified_direction_sets`: per iteration, one direction per chain such that
-  every chain's sequence is independent and uniform on the sphere while the directions
-  of one iteration cover it evenly (``ray_bundle``'s chains).
+  light sample, or a light and a BSDF sample combined by MIS (``qmc_lighttrace``'s
+  final gathering, ``ray_bundle``'s first shot).
 """
-import math
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -140,44 +135,3 @@ class IsotropicLobe:
         sin_t = dr.sin(theta)
         pdf_theta = self.distribution.eval_pdf_normalized(theta)
         return dr.select((sin_t > 0) & (wo.z > 0), pdf_theta / (dr.two_pi * sin_t), 0.0)
-
-
-def spherical_fibonacci(n, hemisphere=False):
-    """``n`` evenly spread unit directions (numpy (n, 3)): the spherical Fibonacci
-    set, equal-area bands in z (over z in [0, 1] with ``hemisphere``) with golden-angle
-    azimuths."""
-    k = np.arange(n) + 0.5
-    z = k / n if hemisphere else 1.0 - 2.0 * k / n
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
-def random_rotation(rng):
-    """A uniformly distributed 3x3 rotation matrix (Haar measure) from a numpy
-    Generator: the unit quaternion of four normal deviates."""
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def stratified_direction_sets(count, chains, rng, antipodal=False, shuffle=True):
-    """Directions for ``count`` iterations of ``chains`` chains (numpy (count, chains, 3)):
-    per iteration the spherical Fibonacci set of ``chains`` points (of the upper
-    hemisphere with ``antipodal``, for users of both +d and -d), turned by a fresh
-    uniformly random rotation and dealt to the chains in a fresh random order.
-
-    Each chain's direction is therefore uniform on the sphere and independent from
-    iteration to iteration (what an unbiased random-direction iteration needs), while
-    the directions of one iteration are stratified across the chains, so averages over
-    the chains converge faster. The fresh order matters: with a fixed order every chain
-    would be turned by the same relative rotation from one iteration to the next, an
-    error shared by all chains (``shuffle=False`` does that, to show it)."""
-    base = spherical_fibonacci(chains, hemisphere=antipodal)
-    sets = np.empty((count, chains, 3))
-    for m in range(count):   # per iteration (scalar set-up, not per ray)
-        order = rng.permutation(chains) if shuffle else np.arange(chains)
-        sets[m] = base[order] @ random_rotation(rng).T
-    return sets

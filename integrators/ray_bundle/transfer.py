@@ -1,0 +1,160 @@
+"""Transport of ``ray_bundle``: the chains' patch radiances, the global line bundles that
+exchange them, and the reflection into the next global direction.
+
+Layout: patch ``t`` of chain ``b`` is slot ``b * count + t``; with ``sides`` global
+directions per iteration (+d, and -d when the bundles are used both ways) every
+per-patch array holds ``sides`` blocks of slots: side 0 is the radiance leaving along
++d (or arriving along +d, for the incoming power), side 1 along -d.
+"""
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins import seeds
+from mi_plugins.integrators.core import SPLAT_MODE
+from mi_plugins.sampling import direct_light
+
+
+class ChainLayout:
+    """Lanes of ``chains`` chains of ``table``'s patches, on ``sides`` sides."""
+
+    def __init__(self, table, chains, sides):
+        self.table, self.chains, self.sides, self.count = table, int(chains), int(sides), table.count
+        self.slots = self.chains * self.count
+        self.lanes = self.sides * self.slots
+
+    def lane_parts(self):
+        """(side, triangle, chain) of every lane."""
+        lane = dr.arange(mi.UInt32, self.lanes)
+        slot = lane % self.slots
+        return lane // self.slots, slot % self.count, slot // self.count
+
+    def slot_of(self, tri, chain, side=0):
+        return (side * self.chains + chain) * self.count + tri
+
+
+@dataclass
+class IterationState:
+    """What one iteration hands to the next: the chains' directions ``dirs`` (one
+    Vector3f per chain), the radiance ``L`` every patch sends along each side, and its
+    part ``R`` carried by the bundles (L minus the source term)."""
+    dirs: mi.Vector3f
+    L: mi.Color3f
+    R: mi.Color3f
+
+
+def bounding_sphere(scene, table):
+    """Centre (the bounding box's) and radius (farthest vertex, slightly enlarged) of a
+    sphere around all triangles."""
+    center = np.array(scene.bbox().center(), dtype=np.float64)
+    radius = float(np.sqrt(np.max(np.sum((table.vertices_np - center) ** 2, axis=-1))))
+    return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
+
+
+def direct_light_mis(scene, si, bsdf, rng, active):
+    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS."""
+    light_sample = mi.Point2f(rng.next_float32(), rng.next_float32())
+    bsdf_sample = (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()))
+    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample)
+
+
+def bsdf_over_cosine(si, incoming, towards_source):
+    """f(towards_source -> si.wi) * incoming, with f = bsdf.eval / cos."""
+    bsdf = si.bsdf()
+    wo = si.to_local(towards_source)
+    cos_in = mi.Frame3f.cos_theta(wo)
+    value = mi.Color3f(bsdf.eval(mi.BSDFContext(), si, wo, cos_in > 1e-6))
+    return dr.select(cos_in > 1e-6, value / cos_in, 0.0) * incoming
+
+
+class Transport:
+    """The transfer and reflection steps of all chains of one render."""
+
+    def __init__(self, scene, layout, resolution, first_shot, seed):
+        self.scene, self.layout, self.resolution, self.first_shot = scene, layout, int(resolution), first_shot
+        self.center, self.radius = bounding_sphere(scene, layout.table)
+        self.lines = self.resolution ** 2 * layout.chains
+        self.rng_lines = seeds.pcg(self.lines, seed, "lines")
+        self.rng_patch = seeds.pcg(layout.lanes, seed, "patches")
+        self.weight = 4.0 * np.pi / layout.sides      # solid angle per global direction
+
+    def state(self):
+        return self.rng_lines.state, self.rng_patch.state
+
+    def source(self, si, rng):
+        """The radiance a patch point sends toward ``si.wi`` without the bundles'
+        transport: its emission, or with ``first_shot`` the direct light it reflects
+        (one light and one BSDF sample; no rays where ``si.wi`` is behind a surface that
+        neither transmits nor has a back side)."""
+        if not self.first_shot:
+            return mi.Color3f(si.emitter(self.scene).eval(si))
+        bsdf = si.bsdf()
+        flags = bsdf.flags()
+        can_reach = ((mi.Frame3f.cos_theta(si.wi) > 0) | mi.has_flag(flags, mi.BSDFFlags.BackSide)
+                     | mi.has_flag(flags, mi.BSDFFlags.Transmission))
+        return direct_light_mis(self.scene, si, bsdf, self.rng_patch, can_reach)
+
+    def _patch_points(self, dirs):
+        """A uniformly random point of every patch on every lane, seen from the lane's
+        side of its chain's direction; returns (si, triangle, chain)."""
+        side, tri, chain = self.layout.lane_parts()
+        out = dr.gather(mi.Vector3f, dirs, chain) * (1.0 - 2.0 * mi.Float(side))
+        sample = mi.Point2f(self.rng_patch.next_float32(), self.rng_patch.next_float32())
+        return self.layout.table.surface_interaction(tri, sample, out), tri, chain
+
+    def initial(self, dirs):
+        """L_0 = the source term along every side of ``dirs`` (nothing carried yet)."""
+        si, _, _ = self._patch_points(dirs)
+        return IterationState(dirs, self.source(si, self.rng_patch), dr.zeros(mi.Color3f, self.layout.lanes))
+
+    def transfer(self, state):
+        """Walk every chain's bundle of parallel lines along its direction d (jittered
+        every iteration; all successive hits of each line) and return the incoming power
+        per unit projected area of every patch, summed over the lines, for every side:
+        side 0 arriving along +d (sent by the previous hit facing +d), side 1 along -d."""
+        layout, table, res = self.layout, self.layout.table, self.resolution
+        per_chain = res * res
+        k = dr.arange(mi.UInt32, self.lines)
+        chain, line = k // per_chain, k % per_chain
+        d = dr.gather(mi.Vector3f, state.dirs, chain)
+        frame = mi.Frame3f(d)
+        cell = 2.0 * self.radius / res
+        u = (mi.Float(line % res) + self.rng_lines.next_float32()) * cell - self.radius
+        v = (mi.Float(line // res) + self.rng_lines.next_float32()) * cell - self.radius
+        ray = mi.Ray3f(self.center + frame.s * u + frame.t * v - d * (1.01 * self.radius), d)
+        incoming = dr.zeros(mi.Color3f, layout.lanes)
+        back = layout.sides - 1          # the side whose radiance travels along -d
+        L, scene, area = state.L, self.scene, cell * cell
+
+        def body(ray, active, prev, prev_fwd):
+            pi = scene.ray_intersect_preliminary(ray, active)
+            hit = active & pi.is_valid()
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, hit)
+            tri = table.triangle_index(si.shape, si.prim_index)
+            cos_d = dr.dot(dr.gather(mi.Normal3f, table.normal, tri, hit), d)
+            slot = layout.slot_of(tri, chain)
+            exchange = hit & prev_fwd & (cos_d < 0)
+            dr.scatter_add(incoming, dr.gather(mi.Color3f, L, prev, exchange) * area, slot, exchange, mode=SPLAT_MODE)
+            if back:
+                dr.scatter_add(incoming, dr.gather(mi.Color3f, L, slot + back * layout.slots, exchange) * area,
+                               prev + back * layout.slots, exchange, mode=SPLAT_MODE)
+            return si.spawn_ray(d), hit, slot, hit & (cos_d > 0)
+
+        dr.while_loop((ray, (u * u + v * v) <= self.radius * self.radius, dr.zeros(mi.UInt32, self.lines),
+                       mi.Bool(False)), lambda ray, active, prev, prev_fwd: active, body)
+        return incoming
+
+    def reflect(self, state, incoming, new_dirs):
+        """The next iteration's radiance along every side of ``new_dirs``:
+        L_new = source + R, R = weight * f * (incoming along +-d) / A_i."""
+        layout = self.layout
+        si, tri, chain = self._patch_points(new_dirs)
+        d = dr.gather(mi.Vector3f, state.dirs, chain)
+        area = dr.maximum(dr.gather(mi.Float, layout.table.area, tri), 1e-30)   # degenerate: never hit
+        R = mi.Color3f(0.0)
+        for j in range(layout.sides):   # radiance arriving along +d comes from -d, and back
+            arriving = dr.gather(mi.Color3f, incoming, layout.slot_of(tri, chain, j))
+            R += self.weight * bsdf_over_cosine(si, arriving / area, d * (2.0 * j - 1.0))
+        return IterationState(new_dirs, self.source(si, self.rng_patch) + R, R)
