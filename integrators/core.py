@@ -58,6 +58,7 @@ class Frame:
         self._blocks = {}        # name -> (block, light scale or None)
         self._committed = {}
         self._sampler = None
+        self._coverage = None    # see _edge_coverage
 
     # ------------------------------------------------------------------ camera samples
     def camera_passes(self, per_pixel, passes):
@@ -146,6 +147,32 @@ class Frame:
                 del self._blocks[name]
 
     # ------------------------------------------------------------------ develop
+    def _edge_coverage(self):
+        """Per-pixel share of a uniform density of light splats that a normalising block
+        keeps (1 inside, less within the filter's radius of the film's edge, where the
+        part of each footprint beyond the edge is dropped and no splats arrive from beyond
+        it; the sensor returns splats inside the crop window only, so "edge" is the crop
+        window's). Dividing a light block by it gives the pixel the filter-weighted average of
+        the radiance over the film, which is what a camera block holds; without it a
+        Gaussian filter darkens the border pixels of light-traced images by up to ~16 %.
+        Computed by splatting an n x n grid per pixel with the film's own filter."""
+        film = self.film
+        if film.rfilter().radius() <= 0.5 + 1e-6:
+            return 1.0
+        if self._coverage is None:
+            n = 8
+            block = self.film.create_block(normalize=True)
+            block.set_offset(film.crop_offset())
+            block.set_coalesce(False)
+            idx = dr.arange(mi.UInt32, self.pixels)
+            base = mi.Point2f(mi.Float(idx % self.width), mi.Float(idx // self.width)) + mi.Vector2f(film.crop_offset())
+            value = [mi.Float(1.0 / (n * n))] * (block.channel_count() - 1) + [mi.Float(0.0)]
+            for k in range(n * n):
+                shift = mi.Vector2f(dr.opaque(mi.Float, (k % n + 0.5) / n), dr.opaque(mi.Float, (k // n + 0.5) / n))
+                block.put(base + shift, value)
+                dr.eval(block.tensor())
+            self._coverage = mi.TensorXf(block.tensor())[:, :, 0:1]
+        return self._coverage
     def develop(self, develop=True):
         """The image (TensorXf (H, W, C)): every block developed with the film and summed.
         With ``develop=False`` the film is left holding the result (call
@@ -158,7 +185,7 @@ class Frame:
             self.film.put_block(block)
             image = self.film.develop()
             if scale is not None:
-                image = image * (scale() if callable(scale) else scale)
+                image = image * (scale() if callable(scale) else scale) / self._edge_coverage()
             images.append(image)
         result = images[0]
         for image in images[1:]:
@@ -237,6 +264,9 @@ class CoreIntegrator(mi.SamplingIntegrator):
 
     def render_frame(self, frame):
         raise NotImplementedError
+
+    def to_string(self):
+        return "%s[%s]" % (type(self).__name__, self.plugin)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         raise RuntimeError("%s renders whole images; use mi.render(scene)" % self.plugin)

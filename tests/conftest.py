@@ -82,6 +82,18 @@ def _power_rule(request):
         pytest.fail("power rule (tests/budget.py):\n  " + "\n  ".join(violations), pytrace=False)
 
 
+#: test files run first, in this order: the package's Dr.Jit integrators trace Python code
+#: every iteration, and in a long process Dr.Jit's per-operation cost grows (measured: the
+#: same ray_bundle test 14 s alone, 120 s at the end of the suite); Mitsuba's C++
+#: integrators, which the other files mostly use, are not affected
+FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py", "test_core.py", "test_cli.py")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: k for k, name in enumerate(FIRST)}
+    items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST)))
+
+
 def pytest_terminal_summary(terminalreporter):
     for line in budget.summary():
         terminalreporter.write_line(line)

@@ -99,6 +99,7 @@ TABLE = {
         "gather_samples": INT(1),
         "share_neighbors": BOOL(),
         "mirror_depth": INT(0),
+        "hide_emitters": BOOL(),
     },
     "stochastic_ray": {
         "iterations": INT(1, good=[1, 32]),
