@@ -89,7 +89,7 @@ def report_scene(sname, case, res, meths, notes):
 def summary(results, meths):
     if "path" not in meths:
         return
-    print("\nTargets (issue 4): beat path at equal time on the diffuse closed scenes; >= 1/2 of path's rays/s")
+    print("\nTargets: beat path at equal time on the diffuse closed scenes; >= 1/2 of path's rays/s")
     print("%-30s %-15s %12s %10s" % ("scene", "integrator", "RMSE/path@t*", "rays/s/path"))
     for sname, res in results.items():
         curves = res["curves"]

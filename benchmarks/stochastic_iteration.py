@@ -6,7 +6,7 @@ bundles carrying only reflected radiance), and with ``first_shot=true,
 average_diffuse=true`` (``ray_bundle_avg``: final gathering from the diffuse patches'
 averages over chains and iterations), same resolution, chains and estimate.
 
-Issue 4's benchmark: in one run, every integrator renders every scene at a ladder of
+The stochastic-iteration benchmark: in one run, every integrator renders every scene at a ladder of
 budgets (doubling until a render takes --seconds), and the RMSE of each image against
 the exact image (analytic scenes) or a long `path` reference (the room) is recorded
 against the wall time of the render. Every budget is rendered --repeats times (default

@@ -6,25 +6,7 @@ alpha being the angle between ``wo`` and the mirror direction of ``wi``. The
 normalisation keeps the albedo at most kd + ks <= 1 (energy conserving), and f is
 reciprocal. It is the specular BSDF of the analytic-scenes paper's results.
 
-.. list-table::
-   :header-rows: 1
-
-   * - Parameter
-     - Type
-     - Default
-     - Description
-   * - diffuse_reflectance
-     - float, RGB or texture, >= 0
-     - 0.5
-     - kd.
-   * - specular_reflectance
-     - float, RGB or texture, >= 0
-     - 0.2
-     - ks; kd + ks <= 1 in every channel (checked).
-   * - exponent
-     - float >= 0
-     - 10
-     - n, the Phong exponent.
+The user reference (parameters, examples) is the class docstring.
 
 Sampling: the lobe is chosen with probability proportional to the mean of kd and
 of ks at the point; the diffuse lobe is sampled cosine-weighted, the specular lobe
@@ -40,7 +22,7 @@ from mi_plugins.params import Params
 from mi_plugins.textures import texture_sum_max
 
 
-def _reflect(wi):
+def _mirror_direction(wi):
     return mi.Vector3f(-wi.x, -wi.y, wi.z)
 
 
@@ -49,6 +31,46 @@ def _mean(c):
 
 
 class PhongBSDF(mi.BSDF):
+    r"""
+    .. _bsdf-phong:
+
+    ``phong`` (modified Phong, Lafortune and Willems)
+    --------------------------------------------------
+
+    f = kd/pi + ks (n+2)/(2 pi) cos^n(alpha), alpha from the mirror direction: energy
+    conserving (albedo <= kd + ks <= 1) and reciprocal; the specular BSDF of the
+    analytic-scenes paper's results.
+
+    .. pluginparameters::
+
+     * - diffuse_reflectance
+       - float, RGB or texture
+       - 0.5
+       - kd >= 0
+     * - specular_reflectance
+       - float, RGB or texture
+       - 0.2
+       - ks >= 0, kd + ks <= 1 in every channel (checked)
+     * - exponent
+       - float
+       - 10
+       - n >= 0
+
+    Lobe chosen by mean kd vs ks; the specular lobe sampled proportionally to cos^n
+    around the mirror direction; ``pdf``/``eval_pdf`` consistent with ``sample``
+    (chi-square tested at n = 0, 2, 10, 50).
+
+    .. code-block:: python
+
+        {'type': 'phong', 'diffuse_reflectance': {'type': 'rgb', 'value': 0.3},
+         'specular_reflectance': {'type': 'rgb', 'value': 0.17}, 'exponent': 10.0}
+
+    .. code-block:: xml
+
+        <bsdf type="phong"><rgb name="diffuse_reflectance" value="0.3"/>
+            <rgb name="specular_reflectance" value="0.17"/><float name="exponent" value="10"/></bsdf>
+    """
+
     def __init__(self, props):
         super().__init__(props)
         p = Params(props, "phong")
@@ -76,7 +98,7 @@ class PhongBSDF(mi.BSDF):
         active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
         kd, ks, p_diffuse = self._lobes(si, active)
         n = self.exponent
-        cos_alpha = dr.dot(_reflect(wi), wo)
+        cos_alpha = dr.dot(_mirror_direction(wi), wo)
         cos_alpha_n = dr.select(cos_alpha > 0, dr.power(dr.maximum(cos_alpha, 0.0), n), 0.0)
         cos_o = mi.Frame3f.cos_theta(wo)
         value = (kd * dr.inv_pi + ks * ((n + 2) * dr.inv_two_pi) * cos_alpha_n) * cos_o
@@ -99,7 +121,7 @@ class PhongBSDF(mi.BSDF):
         choose_diffuse = sample1 < p_diffuse
         wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
         lobe_local = square_to_power_cosine_hemisphere(sample2, self.exponent)
-        wo_specular = mi.Frame3f(_reflect(si.wi)).to_world(lobe_local)
+        wo_specular = mi.Frame3f(_mirror_direction(si.wi)).to_world(lobe_local)
         wo = dr.select(choose_diffuse, wo_diffuse, wo_specular)
         value, pdf = self._value_and_pdf(si, wo, active)
         active &= pdf > 0

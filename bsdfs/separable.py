@@ -10,35 +10,7 @@ has albedo a(w) = 1 - Le(w)/L~, so a closed scene made of such surfaces has
 radiance L~ everywhere, whatever the (isotropic) emission profiles are. A surface
 without emission gets f = 1/pi (albedo 1).
 
-.. list-table::
-   :header-rows: 1
-
-   * - Parameter
-     - Type
-     - Default
-     - Description
-   * - target_radiance
-     - float or RGB > 0
-     - (required)
-     - L~; must exceed the maximum emission of the surface (checked).
-   * - emission
-     - reference to a ``directional_area`` emitter
-     - none (no emission: f = 1/pi)
-     - THE emitter of the shape this BSDF sits on, by reference: ``<ref name="emission"
-       id="..."/>`` in XML, ``{'type': 'ref', 'id': ...}`` or the same emitter object in
-       a dict. The BSDF checks that this emitter is attached to a shape whose BSDF is this
-       BSDF, so it always uses exactly the emission of its surface.
-       Conversely, a ``directional_area`` emitter refuses a shape whose ``separable``
-       BSDF does not reference it (e.g. ``emission`` forgotten).
-   * - normalization
-     - 'exact' | 'simulated'
-     - 'exact'
-     - D from the emitter's exact integral, or the paper's random estimate
-       pi (L~ - (2/M) sum Le(w_i) cos(theta_i)) with M uniform directions per evaluation.
-   * - samples
-     - int >= 1
-     - 16
-     - M for 'simulated'.
+The user reference (parameters, examples) is the class docstring.
 
 Sampling: when the emission is spatially uniform, directions are importance sampled
 with density proportional to (L~ - Le(w')) cos (channel means; a 2048-bin table in
@@ -60,6 +32,55 @@ NORMALIZATIONS = ("exact", "simulated")
 
 
 class SeparableBSDF(mi.BSDF):
+    r"""
+    .. _bsdf-separable:
+
+    ``separable`` (lightsource testing, analytic-scenes paper, section 2.2, eq. 9)
+    ------------------------------------------------------------------------------
+
+    f(w', w) = (L~ - Le(w)) (L~ - Le(w')) / (L~ integral (L~ - Le) cos): albedo
+    1 - Le(w)/L~, so scenes of such surfaces have radiance L~ for ANY emission profiles.
+    Surfaces without emission get f = 1/pi.
+
+    .. pluginparameters::
+
+     * - target_radiance
+       - float or RGB
+       - required
+       - L~ > max emission of the surface (checked)
+     * - emission
+       - reference
+       - none
+       - the shape's own ``directional_area`` emitter, by reference
+     * - normalization
+       - string
+       - ``'exact'``
+       - ``'exact'`` (emitter's exact integral) or ``'simulated'`` (paper's M-direction
+         estimate; biased, see Findings)
+     * - samples
+       - int
+       - 16
+       - M >= 1 for ``'simulated'``
+
+    The BSDF uses exactly the emission of its surface: ``emission`` must reference the
+    emitter object of the same shape, and the BSDF refuses (loud error naming the
+    shape) an emitter that belongs to another shape; a ``directional_area`` emitter
+    refuses a shape whose ``separable`` BSDF does not reference it.
+
+    .. code-block:: python
+
+        {'type': 'ply', 'filename': 'lamp.ply',
+         'emitter': {'type': 'directional_area', 'id': 'lamp_emission', 'exponent': 3.0},
+         'bsdf': {'type': 'separable', 'target_radiance': 2.0, 'emission': {'type': 'ref', 'id': 'lamp_emission'}}}
+
+    .. code-block:: xml
+
+        <shape type="ply"><string name="filename" value="lamp.ply"/>
+            <emitter type="directional_area" id="lamp_emission"><float name="exponent" value="3"/></emitter>
+            <bsdf type="separable"><float name="target_radiance" value="2"/><ref name="emission" id="lamp_emission"/></bsdf>
+        </shape>
+    """
+
     def __init__(self, props):
         super().__init__(props)
         from mi_plugins.emitters.directional_area import DirectionalAreaEmitter  # the current variant's class

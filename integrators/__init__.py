@@ -5,9 +5,9 @@
 """
 
 PLUGINS = {
-    'qmc_lighttrace': 'qmc_lighttrace:QMCLightTraceIntegrator',
     'stochastic_ray': 'stochastic_ray:StochasticRayIntegrator',
     'ray_bundle': 'ray_bundle.integrator:RayBundleIntegrator',
+    'qmc_lighttrace': 'qmc_lighttrace:QMCLightTraceIntegrator',
 }
 
 #: modules holding base classes of the plugins above (reloaded first on a variant switch)

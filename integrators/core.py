@@ -27,6 +27,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
+from mi_plugins.params import Params
 from mi_plugins.integrators.camera import CameraPass
 from mi_plugins.progress import Progress, Steps
 
@@ -218,10 +219,21 @@ class CoreIntegrator(mi.SamplingIntegrator):
     iterative = False
 
     def __init__(self, props):
+        # the package's reader first: the base class reads hide_emitters with its own check
+        hide_emitters = Params(props, self.plugin).bool("hide_emitters", False)
         super().__init__(props)
         check_variant(self.plugin)
+        self.hide_emitters = hide_emitters
         self.progress = Progress()
         self.progress_callback = None
+
+    def read_iterations(self, p, default):
+        """Read ``iterations`` (>= 1) and ``burn_in`` (0 .. iterations - 1, default
+        min(8, iterations - 1)) of an iterative plugin with its reader ``p``."""
+        self.iterations = p.int("iterations", default, lo=1)
+        self.burn_in = p.int("burn_in", min(8, self.iterations - 1), lo=0)
+        if self.burn_in > self.iterations - 1:
+            raise p.conflict(("burn_in", "iterations"), "burn_in in 0 .. iterations - 1 = %d" % (self.iterations - 1))
 
     # backwards-compatible views of the progress of the last render
     @property

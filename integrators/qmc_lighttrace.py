@@ -1,85 +1,7 @@
-"""``qmc_lighttrace``: Keller's quasi-Monte Carlo light tracing in the radiosity setting.
-
-Implements A. Keller, "A quasi-Monte Carlo algorithm for the global illumination
-problem in the radiosity setting" (1994):
-
-1. *Preprocess*: N particle paths leave the light sources, path i driven by point i
-   of a (2M + 4)-dimensional sequence (dimensions 0-1: light choice and position,
-   2-3: emission direction, then two per bounce). Every hit deposits the particle's
-   power on the triangle hit, up to M + 1 hits. The mean reflected radiance of
-   triangle k is L_k = rho_k / (pi |A_k|) * (incoming power) (eqs. 7-8); rho is the
-   diffuse reflectance at the hit point. Optional adaptive termination (section 4):
-   batches of ``batch`` paths until the area-weighted change Delta E of the L_k
-   stays below ``epsilon`` for ``patience`` consecutive batches.
-2. *Render*: per pixel ``spp`` eye rays from the sensor's sampler (ideal mirrors and
-   dielectrics followed, ``mirror_depth`` bounces at most); at the first non-delta hit,
-   L = Le + direct light (one light sample and one BSDF sample, combined by multiple
-   importance sampling: a light sample alone has infinite variance where emitting
-   surfaces meet) + indirect light from ``gather_samples`` cosine-distributed
-   final-gather rays that read the L_k of the triangle they reach (a gather ray that
-   meets a mirror follows it and takes the full radiance behind it), optionally averaged
-   over the 8 neighbouring pixels that see the same triangle.
-
-Truncation: the image contains the light of paths with up to M + 3 segments
-(Mitsuba's ``max_depth = M + 3``): the analytic checks compare with that value.
-
-.. list-table::
-   :header-rows: 1
-
-   * - Parameter
-     - Type
-     - Default
-     - Description
-   * - sequence
-     - string
-     - 'sobol'
-     - 'sobol', 'halton', 'faure', 'lcg' (drand48) or 'independent' (PCG32)
-   * - scramble
-     - bool
-     - true
-     - Owen scrambling (Sobol), random digit permutations (Halton), Faure's
-       permutations with random digit shifts (Faure); seeds for lcg / independent; the
-       render seed selects the randomisation
-   * - max_depth
-     - int >= 0
-     - 6
-     - M: particle paths deposit on up to M + 1 hits
-   * - samples
-     - int >= 1
-     - 100000
-     - N, particle paths (when ``epsilon`` is not given)
-   * - epsilon
-     - float > 0
-     - (none)
-     - adaptive termination threshold on Delta E
-   * - batch
-     - int >= 1
-     - 1000
-     - Delta N, paths per batch of the adaptive termination
-   * - patience
-     - int >= 1
-     - 2
-     - T, consecutive batches below epsilon
-   * - max_samples
-     - int >= 1
-     - 10000000
-     - upper bound of N for the adaptive termination
-   * - gather_samples
-     - int >= 1
-     - 16
-     - SR, final-gather rays per eye ray
-   * - share_neighbors
-     - bool
-     - false
-     - average gather results with the 8 neighbouring pixels that see the same triangle
-   * - mirror_depth
-     - int >= 0
-     - 8
-     - how many delta (mirror/glass) bounces eye rays follow
-
-Triangle meshes only; after a render, ``triangle_radiance`` (numpy (K, 3): total
-radiance L0 + reflected of every triangle), ``reflected_radiance``, ``triangle_areas``
-and ``paths_used`` hold the preprocessing result (also returned by :meth:`preprocess`).
+"""``qmc_lighttrace``: Keller's quasi-Monte Carlo light tracing in the radiosity setting
+(A. Keller, "A quasi-Monte Carlo algorithm for the global illumination problem in the
+radiosity setting", 1994): a particle preprocess that deposits power on triangles, then a
+render with direct light and final gathering. The user reference is the class docstring.
 """
 import drjit as dr
 import mitsuba as mi
@@ -96,13 +18,98 @@ SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
 
 
 class QMCLightTraceIntegrator(CoreIntegrator):
+    r"""
+    .. _integrator-qmc_lighttrace:
+
+    ``qmc_lighttrace`` (Keller 1994, quasi-Monte Carlo light tracing)
+    -----------------------------------------------------------------
+
+    Preprocess: N particle paths from the lights, path i driven by point i of a
+    (2M + 4)-dimensional sequence (0-1: light choice and position, 2-3: direction, two per
+    bounce), depositing power on every triangle hit up to M + 1 hits; L_k = rho_k /
+    (pi |A_k|) x incoming power (eqs. 7-8), with optional adaptive termination (section
+    4: batches until the area-weighted change Delta E stays below ``epsilon`` for
+    ``patience`` batches). Render: eye rays from the sensor's sampler (mirrors and glass
+    followed), emission + direct light (one light sample and one BSDF sample combined by
+    multiple importance sampling: a light sample alone has infinite variance where
+    emitting surfaces meet) + SR cosine final-gather rays reading L_k (a gather ray that
+    meets a mirror follows it). The image contains paths of up to M + 3 segments:
+    compare with ``case.expected(max_depth=M + 3)`` (or use a large M).
+
+    .. pluginparameters::
+
+     * - sequence
+       - string
+       - ``'sobol'``
+       - ``'sobol'``, ``'halton'``, ``'faure'``, ``'lcg'`` (drand48), ``'independent'``
+         (PCG32)
+     * - scramble
+       - bool
+       - true
+       - randomise the sequence with the scramble of ``mi_plugins.qmc`` (the render
+         seed selects it); ``false``: the plain sequence
+     * - max_depth
+       - int
+       - 6
+       - M >= 0 (2M + 4 dimensions must fit the sequence: Halton/Faure M <= 126)
+     * - samples
+       - int
+       - 100000
+       - N >= 1 paths (when ``epsilon`` is not given)
+     * - epsilon
+       - float
+       - none
+       - > 0: adaptive termination threshold on Delta E
+     * - batch
+       - int
+       - 1000
+       - Delta N >= 1
+     * - patience
+       - int
+       - 2
+       - T >= 1 consecutive batches below ``epsilon``
+     * - max_samples
+       - int
+       - 10^7
+       - >= 1, cap for the adaptive termination
+     * - gather_samples
+       - int
+       - 16
+       - SR >= 1 final-gather rays per eye ray
+     * - share_neighbors
+       - bool
+       - false
+       - average gather results with the 8 neighbouring pixels seeing the same triangle
+     * - mirror_depth
+       - int
+       - 8
+       - >= 0 delta bounces followed by eye and gather rays
+     * - hide_emitters
+       - bool
+       - false
+       - do not show directly visible emitters
+
+    Triangle meshes only (a clear error names a non-mesh shape). After a render,
+    ``integrator.triangle_radiance`` (numpy (K, 3), L0 + reflected),
+    ``reflected_radiance``, ``triangle_areas``, ``paths_used`` and ``delta_e_history``
+    hold the preprocessing result; ``integrator.preprocess(scene, seed)`` runs it alone.
+    Radiosity setting: the matrix reports cases with non-diffuse BSDFs as not applicable.
+
+    .. code-block:: python
+
+        {'type': 'qmc_lighttrace', 'sequence': 'sobol', 'max_depth': 29, 'epsilon': 1e-3, 'gather_samples': 16}
+
+    .. code-block:: xml
+
+        <integrator type="qmc_lighttrace"><string name="sequence" value="faure"/>
+            <integer name="max_depth" value="29"/><integer name="samples" value="100000"/></integrator>
+    """
+
     plugin = "qmc_lighttrace"
 
     def __init__(self, props):
-        p = Params(props, "qmc_lighttrace")
-        hide_emitters = p.bool("hide_emitters", False)   # before the base class reads it with its own check
         super().__init__(props)
-        self.hide_emitters = hide_emitters
+        p = Params(props, "qmc_lighttrace")
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
         self.max_depth = p.int("max_depth", 6, lo=0)

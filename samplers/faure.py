@@ -1,14 +1,10 @@
-"""``faure``: Halton sequence with Faure's digit permutations (Keller's report).
-
-Parameters as ``halton``: ``sample_count`` (int >= 1, default 4), ``scramble`` (bool,
-default true: Faure's permutation followed by a random digit shift per pixel, dimension
-and digit position, the scramble of ``mi_plugins.qmc``), ``seed`` (int, default 0:
-selects the randomisation together with the render seed).
-"""
+"""The `faure` sampler (user reference: the class docstring)."""
 from mi_plugins import qmc
-from mi_plugins.samplers.sequence_sampler import SequenceSampler
+from mi_plugins.samplers.sequence_sampler import SequenceSampler, reference
 
 
 class FaureSampler(SequenceSampler):
+    __doc__ = reference('faure', "Halton sequence with Faure's digit permutations",
+                        "Faure's permutation followed by a random digit shift per dimension and digit position")
     sequence = "faure"
     max_dim = qmc.max_dim(sequence)

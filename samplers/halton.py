@@ -1,32 +1,10 @@
-"""``halton``: Halton sequence sampler (radical inverses in the first 256 primes).
-
-.. list-table::
-   :header-rows: 1
-
-   * - Parameter
-     - Type
-     - Default
-     - Description
-   * - sample_count
-     - int, 1 .. 2^32 - 1
-     - 4
-     - samples per pixel (``mi.render(spp=...)`` overrides it)
-   * - scramble
-     - bool
-     - true
-     - random digit permutations (one per pixel, dimension and digit position: the
-       scramble of ``mi_plugins.qmc``), so every pixel has its own randomisation; the
-       permutations also remove the correlations of plain Halton in high dimensions
-   * - seed
-     - int, 0 .. 2^32 - 1
-     - 0
-     - selects the randomisation together with the render seed (``mi.render(seed=...)``):
-       another seed, other images; 0 = the render seed alone
-"""
+"""The `halton` sampler (user reference: the class docstring)."""
 from mi_plugins import qmc
-from mi_plugins.samplers.sequence_sampler import SequenceSampler
+from mi_plugins.samplers.sequence_sampler import SequenceSampler, reference
 
 
 class HaltonSampler(SequenceSampler):
+    __doc__ = reference('halton', 'Halton sequence, radical inverses in the first 256 primes',
+                        'random digit permutations (one per dimension and digit position; they also remove the correlations of plain Halton in high dimensions)')
     sequence = "halton"
     max_dim = qmc.max_dim(sequence)

@@ -23,17 +23,51 @@ random digit shifts for Faure). With ``scramble=False`` all pixels use the same
 unrandomised points (deterministic, correlated across pixels: for studies only).
 Dimensions beyond the sequence's table fall back to hashed pseudo-random numbers.
 
-Parameters (all three samplers): ``sample_count`` (int >= 1, default 4; ``mi.render(spp=...)``
-overrides it), ``scramble`` (bool, default true), ``seed`` (int 0 .. 2^32 - 1, default 0):
-the render seed (``mi.render(seed=...)``) and this seed together select the
-randomisation, so scenes that differ only in the sampler's seed give different images
-for the same render seed; seed 0 gives the randomisation of the render seed alone.
+The user reference of each sampler is its class docstring, made by :func:`reference`.
 """
 import drjit as dr
 import mitsuba as mi
 
 from mi_plugins import qmc
 from mi_plugins.params import Params
+
+
+def reference(name, title, scramble, note=""):
+    """The class docstring (plugin reference) of the sampler ``name``: the parameters are
+    the same for the three samplers, the scramble and the note are the sequence's own."""
+    return """
+    .. _sampler-%(name)s:
+
+    ``%(name)s`` (%(title)s)
+    %(rule)s
+
+    A low-discrepancy sampler for every Mitsuba integrator (Mitsuba 3 ships none): use it
+    as the sensor's sampler with ``path``, ``volpath``, ``ptracer``, ``prb`` or this
+    package's integrators (protocol and randomisation: see the samplers section below).%(note)s
+
+    .. pluginparameters::
+
+     * - sample_count
+       - int
+       - 4
+       - 1 .. 2^32 - 1 samples per pixel (``mi.render(spp=...)`` overrides it)
+     * - scramble
+       - bool
+       - true
+       - each pixel's points randomised with its own seed by %(scramble)s; ``false``:
+         the same unrandomised points in every pixel (deterministic; for studies)
+     * - seed
+       - int
+       - 0
+       - 0 .. 2^32 - 1: selects the randomisation together with the render seed
+         (``mi.render(seed=...)``): scenes differing only in the sampler's ``seed`` give
+         different images for the same render seed; 0 = the render seed alone
+
+    .. code-block:: xml
+
+        <sampler type="%(name)s"><integer name="sample_count" value="64"/></sampler>
+    """ % dict(name=name, title=title, rule="-" * (len(name) + len(title) + 7), scramble=scramble,
+               note=(" " + note) if note else "")
 
 
 class SequenceSampler(mi.Sampler):

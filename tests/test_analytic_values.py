@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from mi_plugins import analytic
-from mi_plugins.analytic.cases import default_sphere_emission
+from mi_plugins.analytic.classic import default_sphere_emission
 
 
 def test_furnace_value_and_truncation():

@@ -8,7 +8,7 @@ import pytest
 
 from mi_plugins import analytic
 from mi_plugins.analytic import harness, stats
-from mi_plugins.analytic.cases import MATRIX_CASES
+from mi_plugins.analytic.classic import MATRIX_CASES
 from mi_plugins.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
 
 import budget

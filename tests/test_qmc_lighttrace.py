@@ -27,7 +27,7 @@ import pytest
 from mi_plugins import analytic, geometry
 from mi_plugins.analytic import harness, stats
 from mi_plugins.analytic.case import rgb_dict
-from mi_plugins.analytic.cases import ConstantCase
+from mi_plugins.analytic.classic import ConstantCase
 from mi_plugins.meshtable import NonMeshShapeError  # noqa: F401  (the error type of the refusal)
 
 import budget

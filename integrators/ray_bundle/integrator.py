@@ -18,110 +18,140 @@ class RayBundleIntegrator(CoreIntegrator):
     r"""
     .. _integrator-ray_bundle:
 
-    Stochastic iteration with global ray bundles (``ray_bundle``)
-    -------------------------------------------------------------
+    ``ray_bundle`` (stochastic iteration, global ray bundles)
+    ---------------------------------------------------------
 
-    Finite-element stochastic iteration over the triangles of the scene's meshes. Each
-    patch :math:`i` keeps only its radiance :math:`L[i]` in the current global direction
-    :math:`\omega_m` (and in :math:`-\omega_m` when ``bidirectional``). Every iteration
-    transfers all patch radiances along :math:`\omega_m` with a bundle of
-    ``resolution`` x ``resolution`` jittered parallel lines across the scene's bounding
-    sphere (all successive hits along each line; consecutive hits facing each other
-    exchange radiance), picks a new direction :math:`\omega_{m+1}`, and reflects:
+    Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the triangles
+    of the scene's meshes. Each patch keeps only its radiance in the current global
+    direction w_m (and -w_m when ``bidirectional``). Each iteration transfers all patch
+    radiances along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines
+    across the scene's bounding sphere (jittered every iteration; every line walks ALL its
+    successive hits, and consecutive hits facing each other exchange radiance), picks a
+    new random direction w_{m+1} and reflects:
+    L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j A(i,j,w_m) / A_i L[j]
+    (2 pi per direction when bidirectional). Emission and BSDF are evaluated at a fresh
+    uniformly random point of each patch every iteration (unbiased patch averages:
+    textured emission and albedo work). Memory: O(chains x (triangles + resolution^2));
+    no per-pair storage.
 
-    .. math:: L_{new}[i] = L^e_i(\omega_{m+1}) + 4\pi f_i(\omega_m,\omega_{m+1}) \sum_j A(i,j,\omega_m)/A_i\, L[j]
+    .. pluginparameters::
 
-    (with ``bidirectional`` both :math:`\pm\omega` are used and each gets weight
-    :math:`2\pi`). Emission and BSDF are evaluated at a uniformly random point of each
-    patch every iteration, so textures are averaged without bias. Memory is
-    O(chains x (triangles + resolution^2)).
+     * - iterations
+       - int
+       - 64
+       - >= 1 global directions per unit of ``spp``
+     * - burn_in
+       - int
+       - min(8, iterations - 1)
+       - 0 .. iterations - 1 iterations left out of the image average
+     * - resolution
+       - int
+       - 128
+       - >= 1 lines per side of the bundle
+     * - chains
+       - int
+       - 1
+       - >= 1 chains (own directions, own patch radiances) advanced in lockstep by one
+         kernel per iteration; the image averages them. 1 is the paper's algorithm;
+         16-64 chains use the cores far better when ``resolution^2`` and the triangle
+         count are small
+     * - bidirectional
+       - bool
+       - true
+       - use every line in both directions (A(i,j,w) = A(j,i,-w))
+     * - first_shot
+       - bool
+       - false
+       - direct light by next-event estimation: one light sample and one BSDF sample
+         (MIS) per patch point and per camera sample; the bundles then carry only the
+         reflected radiance L - Le. Unbiased like the default, and far less noisy where
+         direct light dominates (small lights: 4-7x lower RMSE at equal time in the
+         benchmark's room). false is the paper's algorithm
+     * - estimate
+       - string
+       - ``'gather'``
+       - ``'gather'``: at each pixel's visible point, reflect the stored radiance
+         arriving along +-w_m toward the eye (the paper's per-pixel variant);
+         ``'patch'``: the visible patch's incoming radiance of the bundle, reflected
+         toward the eye
+     * - direction_sequence
+       - string
+       - ``'independent'``
+       - ``'independent'``, ``'halton'``, ``'hammersley'``, ``'pi'`` (q_n = {(pi - 2)
+         q_{n-1}} mod 100000). Only random directions are correct: Halton and
+         Hammersley are 1-uniform and bias the result (paper 6.1; kept to reproduce it)
+     * - stratify_chains
+       - bool
+       - true with ``'independent'``
+       - every iteration the chains' directions form one evenly spread set (spherical
+         Fibonacci, over the hemisphere when ``bidirectional``), freshly randomly
+         rotated and dealt to the chains in a fresh random order: each chain's
+         directions stay independent and uniform (unbiased), while the chain average has
+         less noise (RMSE halved in the furnace sphere mesh at 64 chains). ``false``:
+         independent chains. No effect with one chain; ``true`` with another
+         ``direction_sequence`` is an error
+     * - average_diffuse
+       - bool
+       - false
+       - final gathering from averaged diffuse patches: a purely diffuse patch reflects
+         the same radiance in every direction, so all chains' values in all averaged
+         iterations estimate one number; their per-triangle average (O(triangles)
+         memory) replaces the chain's value in the image, which is made after the
+         iterations (one pass per averaged iteration; with ``first_shot`` the gathered
+         point's own direct light by next-event estimation, never patch-averaged).
+         Unbiased like the default; far less noise. Non-diffuse patches keep the
+         per-chain estimate. false is the paper's algorithm
+     * - gather_nee
+       - bool
+       - true
+       - with ``first_shot`` and ``average_diffuse``: the direct light of each gathered
+         point by next-event estimation (exact where it varies within a patch, e.g. near
+         lights; 4 more rays per camera sample). false: the direct light is part of the
+         patch average (no extra rays). true is exact where the reflected radiance minus
+         the direct light is constant per patch; where only their sum is (analytic
+         scenes whose neighbouring patches emit differently, e.g. the Bekaert box: 0.6 %
+         low) use false
+     * - hide_emitters
+       - bool
+       - false
+       - do not show directly visible emitters
 
-    .. list-table::
-       * - Parameter, type, default, range: meaning
-       * - ``iterations``, int, 64, >= 1: global directions (transfers) per render pass
-       * - ``burn_in``, int, 8, 0 .. iterations-1: iterations left out of the image average
-       * - ``resolution``, int, 128, >= 1: lines per side of the bundle
-       * - ``chains``, int, 1, >= 1: chains (own direction sequence, own
-           patch radiances) run in lockstep, one kernel per iteration for all of them;
-           the image averages the chains. 1 is the paper's algorithm; more chains use the
-           cores better when ``resolution^2`` or the triangle count is small
-       * - ``bidirectional``, bool, true: use every line in both directions
-       * - ``first_shot``, bool, false: direct light by next-event estimation (one
-           visibility-tested light sample per patch point and per camera sample, as in
-           the "first shot" of radiosity); the bundles then carry only reflected
-           radiance. Unbiased like the default; much less noise where direct light
-           dominates (small lights). false is the paper's algorithm
-       * - ``estimate``, string, 'gather': 'gather' (per pixel, reflect the stored radiance
-           arriving along the bundle direction(s) at the visible point toward the eye) or
-           'patch' (per pixel, the patch-averaged incoming radiance of the visible patch)
-       * - ``direction_sequence``, string, 'independent': 'independent' | 'halton' |
-           'hammersley' | 'pi'. Only 'independent' is correct: the others are 1-uniform
-           sequences and bias the result (paper section 6.1).
-       * - ``stratify_chains``, bool, true with 'independent': every iteration, the
-           directions of the chains form one evenly spread set (a spherical Fibonacci
-           set, over the hemisphere when ``bidirectional``), freshly randomly rotated and
-           dealt to the chains in a fresh random order. Each chain's directions stay
-           independent and uniform (unbiased, as the paper requires) while the image,
-           which averages the chains, has less noise (RMSE halved on the furnace
-           sphere mesh with 64 chains). false: independent directions in every
-           chain. No effect with one chain; only with 'independent'
-       * - ``average_diffuse``, bool, false: final gathering from averaged diffuse
-           patches. A patch with a purely diffuse BSDF reflects the same radiance in
-           every direction, so all chains' values in all averaged iterations estimate
-           the same number: their average (O(triangles) memory) replaces the current
-           chain's value in the image. The image is then made after the iterations, one
-           pass per averaged iteration (same camera samples and directions; with
-           ``first_shot`` the gathered point's direct light by next-event estimation).
-           Unbiased like the default for the patch-averaged problem; far less noise
-           (furnace sphere mesh: 6x lower RMSE at equal time than first shot alone). Non-diffuse patches
-           keep the paper's per-chain estimate. false is the paper's algorithm
-       * - ``gather_nee``, bool, true: with ``first_shot`` and ``average_diffuse``, the
-           direct light of each gathered point by next-event estimation (exact where it
-           varies within a patch, e.g. near lights). false: the direct light is part of
-           the patch average (no extra rays). true is exact where the reflected
-           radiance minus the direct light is constant per patch; where only their
-           sum is (neighbouring patches emitting differently, e.g. the Bekaert box:
-           0.6 % low) use false
-       * - ``hide_emitters``, bool, false: do not show directly visible emitters
+    **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global
+    iterations of every chain (``burn_in`` once); every averaged iteration traces one
+    camera sample per pixel and chain, drawn from the sensor's sampler: work is linear in
+    k and in ``chains``. With ``average_diffuse`` those camera samples are traced in the
+    final gathering after the iterations (and also during them when the scene has
+    non-diffuse patches); ``iteration_count(spp)`` and the progress bar count both.
+    Camera rays are followed through purely specular surfaces to the first non-delta one.
+    **Restrictions:** triangle meshes only: an analytic ``sphere``, ``rectangle``, ...
+    raises ``NonMeshShapeError`` naming the shape (use ``ply``/``obj`` meshes, e.g. the
+    ``sphere_mesh`` geometry). Transport *through* delta (mirror/glass) surfaces cannot be
+    captured by random global directions: a ``RuntimeWarning`` names the shapes with delta
+    lobes. The radiance is constant per patch: where the true radiance varies within a
+    triangle the result is its patch average (exact in the furnace and
+    constant-radiance cases; on the tessellated diffuse sphere the only tolerance is the
+    case's documented mesh bias, because a sphere's point-to-patch form factor is the same
+    for every receiving point).
 
-    ``mi.render(scene, spp=k)`` runs ``iterations * k`` global iterations of every chain;
-    every averaged iteration traces one fresh camera sample per pixel and chain (work
-    linear in ``k`` and in ``chains``). With ``average_diffuse`` those camera samples are
-    traced after the iterations (the final gathering), and again during the iterations
-    when the scene also has non-diffuse patches.
+    .. code-block:: python
 
-    Progress: ``integrator.progress_callback = f``; ``f(done, total)`` after every
-    iteration, return ``False`` to stop early; Ctrl-C also stops early; the finished
-    iterations make the image. With ``average_diffuse`` the steps also count the final
-    gathering's passes (``integrator.iteration_count(spp)``); stopping during the
-    iterations still runs one final-gathering pass per finished averaged iteration
-    (stop again to cut it short: the finished passes, at least one, make the image).
+        {'type': 'ray_bundle', 'iterations': 128, 'resolution': 32, 'chains': 64, 'estimate': 'gather',
+         'first_shot': True, 'average_diffuse': True}
 
-    With ``first_shot`` the stored radiance is the reflected part
-    :math:`L_r = L - L^e` and the iteration is
-    :math:`L_r^{new}[i] = (T L^e)_i(\omega_{m+1}) + 4\pi f_i \sum_j A(i,j,\omega_m)/A_i\, L_r[j]`
-    with :math:`T L^e` (direct light) estimated by one light sample at the patch point;
-    the image adds the directly seen emission, the direct light at the visible point
-    (one light sample) and the gathered or patch-averaged reflected radiance.
+    .. code-block:: xml
 
-    Caveats: only triangle meshes (other shapes: ``NonMeshShapeError``). The radiance is
-    constant per patch, so non-constant radiance over a patch is averaged (bias of order
-    of the radiance variation within a triangle; zero in the furnace and constant-radiance
-    cases). Transport through delta (mirror/glass) surfaces cannot be captured by random
-    global directions: such surfaces only reflect the camera rays (a warning is issued).
+        <integrator type="ray_bundle"><integer name="iterations" value="128"/>
+            <integer name="resolution" value="32"/><integer name="chains" value="64"/>
+            <boolean name="first_shot" value="true"/><boolean name="average_diffuse" value="true"/>
+            <string name="direction_sequence" value="independent"/></integrator>
     """
     plugin = "ray_bundle"
     iterative = True
 
     def __init__(self, props=mi.Properties()):
-        p = Params(props, "ray_bundle")
-        hide_emitters = p.bool("hide_emitters", False)   # before the base class reads it with its own check
         super().__init__(props)
-        self.hide_emitters = hide_emitters
-        self.iterations = p.int("iterations", 64, lo=1)
-        self.burn_in = p.int("burn_in", min(8, self.iterations - 1), lo=0)
-        if self.burn_in > self.iterations - 1:
-            raise p.conflict(("burn_in", "iterations"), "burn_in in 0 .. iterations - 1 = %d" % (self.iterations - 1))
+        p = Params(props, "ray_bundle")
+        self.read_iterations(p, 64)
         self.resolution = p.int("resolution", 128, lo=1)
         self.chains = p.int("chains", 1, lo=1)
         self.bidirectional = p.bool("bidirectional", True)

@@ -7,8 +7,8 @@ any Mitsuba integrator against them.
 >>> res.passed, res.mean, res.expected_mean, res.z, res.rmse, res.seconds
 """
 from .case import AnalyticCase
-from .cases import bekaert, diffuse_sphere, furnace, keller_cube, mirror_sphere
-from .constant_radiance import *  # noqa: F401,F403  (issue 3 cases)
+from .classic import bekaert, diffuse_sphere, furnace, keller_cube, mirror_sphere
+from .constant_radiance import *  # noqa: F401,F403  (constant-radiance cases)
 from .harness import CheckResult, check
 from .matrix import all_cases
 

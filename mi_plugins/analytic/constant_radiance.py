@@ -7,7 +7,7 @@ afresh at each evaluation, unbiased): the radiance is L~ everywhere, for ANY BSD
 import numpy as np
 
 from .case import camera_for, closed_surfaces, require_range, rgb, rgb_dict
-from .cases import ConstantCase
+from .classic import ConstantCase
 
 #: the paper's section 4 set-up: Sierpinski scene, average albedo 0.47, Phong n = 10
 PAPER_ALBEDO = 0.47

@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from .. import xml
+from .. import scene_xml
 
 XML_DEFAULTS = {"integrator": "path", "spp": 64}
 
@@ -39,7 +39,7 @@ def exact_statement(case):
 def export_case(case, path):
     d = case.scene_dict({"type": "$integrator"})
     d["sensor"]["sampler"]["sample_count"] = "$spp"
-    return xml.write_scene(d, path, exact_statement(case), defaults=XML_DEFAULTS)
+    return scene_xml.write_scene(d, path, exact_statement(case), defaults=XML_DEFAULTS)
 
 
 def export_all(directory, names=None):

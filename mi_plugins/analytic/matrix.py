@@ -7,7 +7,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
-from . import harness
+from . import classic, constant_radiance, harness
 
 
 @dataclass
@@ -140,16 +140,11 @@ INTEGRATORS = {
 
 
 def all_cases():
-    # (`analytic.cases` is the public function, so the case modules are imported by name)
-    from .cases import MATRIX_CASES as classic
-    from .constant_radiance import MATRIX_CASES as constant_radiance
-    return {**classic, **constant_radiance}
+    return {**classic.MATRIX_CASES, **constant_radiance.MATRIX_CASES}
 
 
 def quick_cases():
-    from .cases import QUICK_CASES as classic
-    from .constant_radiance import QUICK_CASES as constant_radiance
-    return tuple(classic) + tuple(constant_radiance)
+    return tuple(classic.QUICK_CASES) + tuple(constant_radiance.QUICK_CASES)
 
 
 def _select(names, available, what):

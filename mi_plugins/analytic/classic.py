@@ -1,6 +1,6 @@
 """The classic analytic cases: furnace, Keller's cube, Bekaert, diffuse and mirror sphere.
 
-Exact values (see ``../shared/papers/analytic-test-scenes.txt``), with Mitsuba's
+Exact values (from the analytic-scenes paper of Szirmay-Kalos, Kovács and Abbas), with Mitsuba's
 ``max_depth`` convention (D = 1: emitters only; D = -1: unbounded):
 
 - furnace:        L = Le * sum_{k<D} a^k  ->  Le / (1 - a)
