@@ -64,15 +64,17 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
     first surface with any non-delta component (the delta lobes of mixed BSDFs such as
     ``plastic`` are not followed), after ``max_bounces`` specular bounces, or when
     Mitsuba's ``max_depth`` (1: emission seen directly only) is reached; Russian roulette
-    after ``RR_DEPTH`` bounces. ``hide_emitters`` hides directly visible emission."""
+    after ``RR_DEPTH`` bounces. Rays that leave the scene see the environment emitter, if
+    any. ``hide_emitters`` hides directly visible emission."""
     ctx = mi.BSDFContext()
     depth_limit = mi.UInt32(max_depth if max_depth >= 0 else (1 << 30))
     bounce_limit = mi.UInt32(max_bounces if max_bounces is not None else (1 << 30))
 
     def body(ray, throughput, emission, active, reached, depth, rng):
         si = scene.ray_intersect(ray, active)
-        show = active & (depth < depth_limit) & si.is_valid()
-        visible = show & (depth > 0) if hide_emitters else show
+        seen = active & (depth < depth_limit)      # hits, and misses that see the environment
+        show = seen & si.is_valid()
+        visible = seen & (depth > 0) if hide_emitters else seen
         emission += dr.select(visible, throughput * mi.Color3f(si.emitter(scene, visible).eval(si, visible)), 0.0)
         bsdf = si.bsdf(ray)
         flags = bsdf.flags()

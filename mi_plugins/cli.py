@@ -21,12 +21,13 @@ def _parser():
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--list", action="store_true", help="list the integrators and cases and exit")
 
-    r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR file")
+    r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR, PNG or JPEG file")
     r.add_argument("scene", metavar="SCENE.xml")
-    r.add_argument("-o", "--output", required=True, metavar="OUT.exr")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.{exr,png,jpg}",
+                   help="output image: .exr (float32 RGB with metadata), .png or .jpg/.jpeg (8-bit sRGB)")
     r.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the scene's sampler)")
     r.add_argument("--passes", type=int, default=8, help="number of passes the spp are split into")
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--seed", type=int, default=0, help="0 .. 42948 (42947 above 38452 passes)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="name=value",
                    help="set an XML $parameter (repeatable)")
     return p
@@ -75,26 +76,52 @@ def _parse_defines(defines):
 def _render(args):
     import mitsuba as mi
     from . import exr, passes
+    if args.spp is not None and args.spp < 1:
+        raise ValueError("--spp %d: must be a positive integer (valid range: 1 or more)" % args.spp)
+    if args.passes < 1:
+        raise ValueError("--passes %d: must be a positive integer (valid range: 1 or more)" % args.passes)
+    exr.check_output(args.output)  # before any work: a bad output path fails fast
     if not os.path.isfile(args.scene):
         raise FileNotFoundError("scene file '%s' does not exist" % args.scene)
-    if args.spp is not None and args.spp < 1:
-        raise ValueError("--spp %d: must be a positive integer" % args.spp)
-    if args.passes < 1:
-        raise ValueError("--passes %d: must be a positive integer" % args.passes)
-    scene = mi.load_file(args.scene, **_parse_defines(args.defines))
+    defines = _parse_defines(args.defines)
+    scene = mi.load_file(args.scene, **defines)
+    if scene.integrator() is None:
+        raise ValueError("scene '%s' has no integrator; add one, e.g. <integrator type=\"path\"/>" % args.scene)
+    integrator = _integrator_name(scene.integrator(), args.scene, defines)
+    spp = passes.scene_spp(scene) if args.spp is None else args.spp
+    if spp < 1:  # Mitsuba would die with SIGFPE
+        raise ValueError("the scene's sampler has sample_count=%d; valid range: 1 or more (set it in the scene, "
+                         "with -D spp=N where the scene reads $spp, or override it with --spp N)" % spp)
     result = passes.render_in_passes(scene, spp=args.spp, passes=args.passes, seed=args.seed, progress_bar=True)
-    meta = {"integrator": str(scene.integrator().class_name()) if hasattr(scene.integrator(), "class_name")
-            else type(scene.integrator()).__name__,
+    meta = {"integrator": integrator,
             "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
             "passes": "%d/%d" % (result.passes_done, result.passes), "scene": os.path.abspath(args.scene)}
     if result.iterations:
         meta["iterations"] = "%d/%d" % (result.iterations_done, result.iterations)
-    exr.write(args.output, result.image, meta)
+    exr.save(args.output, result.image, meta)
     state = "interrupted after" if result.interrupted else "finished"
     iterations = ", %s iterations" % meta["iterations"] if result.iterations else ""
     print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
           % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, args.output))
     return 130 if result.interrupted and result.empty else 0
+
+
+def _integrator_name(integrator, scene_file, defines):
+    """The registered plugin name of the scene's integrator ('path', 'ptracer',
+    'ray_bundle', ...): the package's integrators know theirs; for others it is the
+    ``type`` of the scene file's top-level <integrator> (read with Mitsuba's parser)."""
+    import mitsuba as mi
+    from mitsuba import parser
+    from .integrators.core import CoreIntegrator
+    if isinstance(integrator, CoreIntegrator):
+        return integrator.plugin
+    state = parser.parse_file(parser.ParserConfig(mi.variant()), scene_file, **defines)
+    for _, value in state.root.props.items():
+        if isinstance(value, mi.Properties.ResolvedReference):
+            node = state.nodes[value.index()]
+            if node.type == mi.ObjectType.Integrator:
+                return node.props.plugin_name()
+    return integrator.class_name()  # not found in the file (e.g. a <ref>): Mitsuba's class name
 
 
 def main(argv=None):
@@ -107,10 +134,24 @@ def main(argv=None):
     except Exception as e:  # one clear line instead of a traceback
         if os.environ.get("MI_PLUGINS_DEBUG"):
             raise
-        msg = _parameter_error(str(e)) or str(e).strip().splitlines()
-        print("mi-plugins: error: %s" % (" ".join(m.strip() for m in msg) if msg else type(e).__name__),
+        cause = _root_cause(e)
+        msg = _parameter_error(str(cause)) or str(cause).strip().splitlines()
+        print("mi-plugins: error: %s" % (" ".join(m.strip() for m in msg) if msg else type(cause).__name__),
               file=sys.stderr)
         return 2
+
+
+def _root_cause(error):
+    """The innermost exception with a message along the ``__cause__`` chain: mi.render
+    wraps an exception raised in a Python integrator into a generic Dr.Jit RuntimeError
+    ("error while performing a custom differentiable operation")."""
+    best, seen = error, set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if str(error).strip():
+            best = error
+        error = error.__cause__
+    return best
 
 
 def _parameter_error(text):

@@ -1,94 +1,133 @@
-"""Flat per-triangle tables over all meshes of a Mitsuba scene.
+"""Flat per-patch tables over all shapes of a Mitsuba scene.
 
-Finite-element algorithms (``ray_bundle``, ``qmc_lighttrace``) keep one value
-per triangle. :class:`MeshTable` numbers the triangles of all scene meshes
-consecutively (mesh after mesh, in ``scene.shapes()`` order), maps a surface
-interaction to its global triangle index, and builds surface interactions at
-points of chosen triangles so that BSDFs, emitters and textures can be evaluated
-there. Build it at the top level of an integrator's ``render()`` (not inside a
-per-ray plugin method).
+Finite-element algorithms (``ray_bundle``, ``qmc_lighttrace``) keep one value per
+patch. :class:`MeshTable` numbers the patches of all shapes consecutively (shape after
+shape, in ``scene.shapes()`` order): the triangles of meshes, and the cells of the
+analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (see
+:mod:`mi_plugins.tessellation`). It maps a surface interaction to its patch
+(:meth:`MeshTable.patch`) and builds surface interactions at uniformly distributed
+points of chosen patches, so that BSDFs, emitters and textures can be evaluated there.
+Orientation is Mitsuba's: a patch's normal is the one ``si.n`` reports (the winding's,
+negated by ``flip_normals``). Build it at the top level of an integrator's ``render()``.
 """
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+from mi_plugins import tessellation
 
 
 class NonMeshShapeError(ValueError):
     """A shape that is not a triangle mesh was given to a triangle-based algorithm."""
 
 
+def _box_corners(bbox):
+    lo, hi = np.array(bbox.min, dtype=np.float64), np.array(bbox.max, dtype=np.float64)
+    return np.array([[(hi if k >> j & 1 else lo)[j] for j in range(3)] for k in range(8)])
+
+
+def _is_mesh(shape):
+    return isinstance(shape, mi.Mesh) and "vertex_positions" in mi.traverse(shape).keys()
+
+
 def require_meshes(scene, who):
-    """Raise NonMeshShapeError naming the first non-mesh shape of ``scene``."""
+    """Raise NonMeshShapeError naming the first shape that has neither triangles nor a
+    patch division (:data:`mi_plugins.tessellation.KINDS`)."""
     for shape in scene.shapes():
-        if not isinstance(shape, mi.Mesh):
+        kind = tessellation.shape_kind(shape)
+        if not _is_mesh(shape) and kind not in tessellation.KINDS:
             raise NonMeshShapeError(
-                "%s: shape '%s' (%s) is not a triangle mesh; this algorithm works on triangles. "
-                "Use a mesh instead (a 'ply'/'obj' file, or mi_plugins.geometry.icosphere() / "
-                "geometry='sphere_mesh' in mi_plugins.analytic)." % (who, shape.id(), _shape_kind(shape)))
-
-
-def _shape_kind(shape):
-    text = str(shape)
-    return text.split("[", 1)[0].strip() or type(shape).__name__
+                "%s: shape '%s' (%s) is neither a triangle mesh nor one of the analytic shapes divided into "
+                "patches (%s); use a mesh instead (a 'ply'/'obj' file)."
+                % (who, shape.id(), kind, ", ".join(sorted(k.lower() for k in tessellation.KINDS))))
 
 
 class MeshTable:
-    """All triangles of ``scene``'s meshes, numbered 0 .. count-1."""
+    """All patches of ``scene``'s shapes, numbered 0 .. count-1; ``h``: the patch size of
+    analytic shapes (default: bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL)."""
 
-    def __init__(self, scene, who="mi_plugins"):
+    def __init__(self, scene, who="mi_plugins", h=None):
         require_meshes(scene, who)
         self.scene = scene
-        self.meshes = list(scene.shapes())
-        face_counts = np.array([m.face_count() for m in self.meshes], dtype=np.int64)
-        self.face_offsets = np.concatenate([[0], np.cumsum(face_counts)[:-1]]).astype(np.uint32)
-        self.count = int(face_counts.sum())
+        self.meshes = self.shapes = list(scene.shapes())
+        if h is None:
+            h = float(dr.norm(scene.bbox().extents())) / tessellation.CELLS_PER_DIAGONAL
+        parts = [self._mesh_part(m) if _is_mesh(m) else self._analytic_part(m, h) for m in self.shapes]
+        counts = np.array([len(part["area"]) for part in parts], dtype=np.int64)
+        self.face_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
+        self.count = int(counts.sum())
+        cat = lambda key: np.concatenate([part[key] for part in parts])
 
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
-        offset_by_id = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
-        offset_by_id[ids] = self.face_offsets
-        index_by_id = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
-        index_by_id[ids] = np.arange(len(ids), dtype=np.uint32)
-        self._offset_by_id = mi.UInt32(offset_by_id)
-        self._index_by_id = mi.UInt32(index_by_id)
 
-        p, uv, shape_index = [], [], []
-        for k, mesh in enumerate(self.meshes):
-            params = mi.traverse(mesh)
-            verts = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
-            faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
-            p.append(verts[faces])
-            if mesh.has_vertex_texcoords():
-                uvs = np.array(params["vertex_texcoords"], dtype=np.float64).reshape(-1, 2)
-                uv.append(uvs[faces])
-            else:
-                uv.append(np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), (len(faces), 1, 1)))
-            shape_index.append(np.full(len(faces), k, dtype=np.uint32))
-        p = np.concatenate(p)
-        uv = np.concatenate(uv)
-        cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        self.areas_np = 0.5 * np.linalg.norm(cross, axis=1)
-        self.normals_np = cross / np.maximum(2 * self.areas_np[:, None], 1e-30)
-        self.vertices_np = p
-        self.shape_index_np = np.concatenate(shape_index)
+        def by_id(values):       # a lookup table indexed by the shape pointers' ids
+            table = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
+            table[ids] = values
+            return mi.UInt32(table)
 
-        self.p0 = mi.Point3f(*p[:, 0].T)
-        self.e1 = mi.Vector3f(*(p[:, 1] - p[:, 0]).T)
-        self.e2 = mi.Vector3f(*(p[:, 2] - p[:, 0]).T)
+        self._offset_by_id = by_id(self.face_offsets)
+        self._kind_by_id = by_id([p["kind"] for p in parts])
+        self._nu_by_id = by_id([p["nu"] for p in parts])
+        self._nv_by_id = by_id([p["nv"] for p in parts])
+
+        self.areas_np, self.normals_np = cat("area"), cat("normal")
+        #: points whose convex hull holds every patch (triangle vertices, analytic shapes' boxes)
+        self.points_np = np.concatenate([part["points"] for part in parts])
+        self.shape_index_np = np.repeat(np.arange(len(parts), dtype=np.uint32), counts)
+        tri = cat("triangle")
+        self.p0 = mi.Point3f(*tri[:, 0].T)
+        self.e1 = mi.Vector3f(*(tri[:, 1] - tri[:, 0]).T)
+        self.e2 = mi.Vector3f(*(tri[:, 2] - tri[:, 0]).T)
+        uv = cat("uv")
         self.uv0 = mi.Point2f(*uv[:, 0].T)
         self.duv1 = mi.Vector2f(*(uv[:, 1] - uv[:, 0]).T)
         self.duv2 = mi.Vector2f(*(uv[:, 2] - uv[:, 0]).T)
+        self.kind = mi.UInt32(np.repeat([p["kind"] for p in parts], counts).astype(np.uint32))
+        bounds = cat("bounds")
+        self.bounds = tuple(mi.Float(bounds[:, k]) for k in range(4))
+        frame = cat("frame")
+        self.frame = [mi.Float(frame[:, k]) for k in range(frame.shape[1])]
         self.normal = mi.Normal3f(*self.normals_np.T)
         self.area = mi.Float(self.areas_np)
         self.shape_index = mi.UInt32(self.shape_index_np)
 
+    @staticmethod
+    def _mesh_part(mesh):
+        params = mi.traverse(mesh)
+        verts = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+        faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
+        p = verts[faces]
+        if mesh.has_vertex_texcoords():
+            uv = np.array(params["vertex_texcoords"], dtype=np.float64).reshape(-1, 2)[faces]
+        else:
+            uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), (len(faces), 1, 1))
+        cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        if mesh.has_flipped_normals():      # Mitsuba's orientation: flip_normals negates the winding's
+            cross = -cross
+        area = 0.5 * np.linalg.norm(cross, axis=1)
+        return dict(kind=0, nu=0, nv=0, area=area, normal=cross / np.maximum(2 * area[:, None], 1e-30),
+                    triangle=p, uv=uv, bounds=np.zeros((len(faces), 4)), frame=np.zeros((len(faces), 21)),
+                    points=p.reshape(-1, 3))
+
+    @staticmethod
+    def _analytic_part(shape, h):
+        cells = tessellation.ShapePatches(shape, h)
+        n = cells.count
+        return dict(kind=cells.kind, nu=cells.nu, nv=cells.nv, area=cells.areas, normal=cells.normals,
+                    triangle=np.zeros((n, 3, 3)), uv=np.zeros((n, 3, 2)), bounds=cells.bounds,
+                    frame=np.tile(cells.frame.columns, (n, 1)), points=_box_corners(shape.bbox()))
+
+    def patch(self, si):
+        """Global patch index of the surface interactions ``si`` (valid hits)."""
+        shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
+        kind = dr.gather(mi.UInt32, self._kind_by_id, shape_id)
+        nu, nv = dr.gather(mi.UInt32, self._nu_by_id, shape_id), dr.gather(mi.UInt32, self._nv_by_id, shape_id)
+        local = dr.select(kind == 0, mi.UInt32(si.prim_index), tessellation.cell_of(kind, nu, nv, si.uv))
+        return dr.gather(mi.UInt32, self._offset_by_id, shape_id) + local
+
     @property
     def total_area(self):
         return float(self.areas_np.sum())
-
-    def triangle_index(self, shape, prim_index):
-        """Global triangle index of (shape pointer array, primitive index)."""
-        shape_id = dr.reinterpret_array(mi.UInt32, shape)
-        return dr.gather(mi.UInt32, self._offset_by_id, shape_id) + mi.UInt32(prim_index)
 
     def shape_pointer(self, tri):
         """ShapePtr of the mesh holding each triangle index."""
@@ -96,24 +135,31 @@ class MeshTable:
         return dr.gather(mi.ShapePtr, self.scene.shapes_dr(), idx)
 
     def surface_interaction(self, tri, sample, wi_world=None):
-        """SurfaceInteraction3f at a uniformly distributed point of each triangle
-        ``tri`` (UInt32), with position, flat normal/frame, uv, shape and primitive."""
-        b = mi.warp.square_to_uniform_triangle(sample)
+        """SurfaceInteraction3f at a uniformly distributed point (in area) of each patch
+        ``tri`` (UInt32), with position, normal/frame, uv, shape and primitive; on
+        triangles the flat normal, on analytic shapes the shape's own
+        ``eval_parameterization``."""
         g = lambda arr, t: dr.gather(t, arr, tri)
+        kind = g(self.kind, mi.UInt32)
+        analytic = kind != 0
+        b = mi.warp.square_to_uniform_triangle(sample)
         p0, e1, e2 = g(self.p0, mi.Point3f), g(self.e1, mi.Vector3f), g(self.e2, mi.Vector3f)
         uv0, duv1, duv2 = g(self.uv0, mi.Point2f), g(self.duv1, mi.Vector2f), g(self.duv2, mi.Vector2f)
         n = g(self.normal, mi.Normal3f)
+        shape = self.shape_pointer(tri)
+        uv = tessellation.sample_cell(kind, tuple(g(x, mi.Float) for x in self.bounds), sample)
+        cell_p, cell_n = tessellation.ShapeFrame.apply([g(x, mi.Float) for x in self.frame],
+                                                       *tessellation.local_point(kind, uv))
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(tri))
-        si.p = p0 + e1 * b.x + e2 * b.y
-        si.uv = uv0 + duv1 * b.x + duv2 * b.y
-        si.n = n
-        si.sh_frame = mi.Frame3f(n)
-        si.shape = self.shape_pointer(tri)
-        si.prim_index = tri - dr.gather(mi.UInt32, mi.UInt32(self.face_offsets),
-                                        dr.gather(mi.UInt32, self.shape_index, tri))
+        si.p = dr.select(analytic, cell_p, p0 + e1 * b.x + e2 * b.y)
+        si.uv = dr.select(analytic, uv, uv0 + duv1 * b.x + duv2 * b.y)
+        si.n = dr.select(analytic, cell_n, n)
+        si.sh_frame = mi.Frame3f(si.n)
+        si.shape = shape
+        si.prim_index = dr.select(analytic, 0, tri - dr.gather(mi.UInt32, mi.UInt32(self.face_offsets),
+                                                               dr.gather(mi.UInt32, self.shape_index, tri)))
         si.time = 0.0
         si.t = 0.0
-        si.wavelengths = dr.zeros(mi.Color0f) if hasattr(mi, "Color0f") else si.wavelengths
         if wi_world is not None:
             si.wi = si.to_local(wi_world)
         return si

@@ -41,6 +41,17 @@ class PassResult:
         return self.passes_done == 0 and self.partial_pass == 0.0
 
 
+#: pass k of a render with seed s uses Mitsuba seed s * SEED_STRIDE + k (a 32-bit integer)
+SEED_STRIDE = 100003
+
+
+def check_seed(seed, passes):
+    """ValueError unless every pass seed of ``passes`` passes fits Mitsuba's 32-bit seed."""
+    top = (2 ** 32 - int(passes)) // SEED_STRIDE
+    if not 0 <= int(seed) <= top:
+        raise ValueError("seed=%d is out of range; valid range: 0 .. %d (with %d passes)" % (seed, top, passes))
+
+
 def split_spp(spp, passes):
     """Split ``spp`` into at most ``passes`` positive parts that differ by at most one."""
     passes = max(1, min(int(passes), int(spp)))
@@ -64,10 +75,17 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     bar when tqdm is installed (counting iterations for iterative integrators, passes
     otherwise). A KeyboardInterrupt stops rendering and returns the finished passes
     (``interrupted=True``), plus, for an iterative integrator, the finished iterations of
-    the interrupted pass.
+    the interrupted pass. Invalid ``spp``, ``passes`` or ``seed`` raise ValueError before
+    any rendering.
     """
+    if int(passes) < 1:
+        raise ValueError("passes = %d; valid range: 1 or more" % passes)
+    source = "the scene sampler's sample_count" if spp is None else "spp"
     spp = scene_spp(scene) if spp is None else int(spp)
+    if spp < 1:  # Mitsuba dies with SIGFPE on 0 samples per pixel
+        raise ValueError("samples per pixel: %s = %d; valid range: 1 or more" % (source, spp))
     parts = split_spp(spp, passes)
+    check_seed(seed, len(parts))
     integrator = scene.integrator()
     iterative = _iterative(integrator)
     planned = sum(integrator.iteration_count(part) for part in parts) if iterative else 0
@@ -84,7 +102,7 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     try:
         for k, part in enumerate(parts):
             try:
-                img = np.array(mi.render(scene, spp=part, seed=int(seed) * 100003 + k), dtype=np.float64)
+                img = np.array(mi.render(scene, spp=part, seed=int(seed) * SEED_STRIDE + k), dtype=np.float64)
             except Exception:
                 # Mitsuba's C++ integrators catch SIGINT themselves, cancel the render and
                 # re-raise the signal; the cancelled render may surface as an exception.
@@ -109,6 +127,10 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
                 callback(done, len(parts))
     except KeyboardInterrupt:
         interrupted = True
+    except Exception:
+        if bar is not None:
+            bar.leave = False  # the error message alone, not a stalled bar above it
+        raise
     finally:
         sigint.restore()
         if bar is not None:

@@ -99,6 +99,18 @@ def chi2(test, alpha=CHI2_ALPHA):
     return ok
 
 
+def chi2_counts(counts, expected, alpha=CHI2_ALPHA):
+    """Pearson's chi-square test of observed ``counts`` against ``expected`` counts at
+    level ``alpha``; records it when it passes. Returns the verdict."""
+    from scipy import stats as sps
+    counts, expected = np.asarray(counts, dtype=np.float64), np.asarray(expected, dtype=np.float64)
+    statistic = float(np.sum((counts - expected) ** 2 / expected))
+    ok = bool(sps.chi2.sf(statistic, len(counts) - 1) > alpha)
+    if ok:
+        _add("chi2", alpha)
+    return ok
+
+
 #: {name: function(block) -> value}: the ratio statistics of the suite (``ratio_statistic``)
 RATIO_STATISTICS = {}
 

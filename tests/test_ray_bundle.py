@@ -66,6 +66,10 @@ CASES = [
     ("bekaert_box", rb(32, burn_in=16), 16, RES),
     ("bekaert_sierpinski", rb(32, burn_in=16), 16, RES),
     ("diffuse_sphere_mesh", rb(32, resolution=32), 24, RES),
+    # Mitsuba's analytic sphere, divided into patches along its (u, v) parameterisation:
+    # the same form-factor argument holds exactly (the patches are pieces of the sphere)
+    ("furnace_sphere", rb(32, resolution=32), 16, RES),
+    ("diffuse_sphere", rb(32, resolution=32), 24, RES),
     ("constant_brdf_phong_box", rb(64, burn_in=16), 32, 8),
     ("sierpinski_phong_simulated", rb(32, burn_in=16), 32, 8),
     ("sierpinski_diffuse_exact", rb(64), 16, RES),
@@ -495,17 +499,31 @@ def assert_same_image(a, b):
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
 
 
-def test_non_mesh_shape_is_rejected():
-    scene = analytic.furnace(0.5, 0.5, "sphere", resolution=8).scene(dict(PAPER, iterations=2))
-    with pytest.raises(NonMeshShapeError, match="not a triangle mesh"):
+def test_a_shape_without_patches_is_rejected_by_name():
+    """Meshes and the analytic rectangle, disk, sphere and cylinder have patches; other
+    shapes (here an instance) are refused with an error naming the shape, also through
+    mi.render (where Mitsuba chains it)."""
+    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2))
+    d["group"] = {"type": "shapegroup", "s": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.1)}}
+    d["inst"] = {"type": "instance", "shapegroup": {"type": "ref", "id": "group"}}
+    scene = mi.load_dict(d, optimize=False)
+    with pytest.raises(NonMeshShapeError, match=r"shape 'inst' \(Instance\) is neither a triangle mesh"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
-    with pytest.raises(Exception) as err:      # through mi.render the error is chained
+    with pytest.raises(Exception) as err:
         mi.render(scene, spp=1)
     chain, e = [], err.value
     while e is not None:
         chain.append(str(e))
         e = e.__cause__
-    assert any("not a triangle mesh" in c and "sphere_mesh" in c for c in chain), chain
+    assert any("'inst' (Instance)" in c for c in chain), chain
+
+
+def test_delta_lights_need_first_shot():
+    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2))
+    d["lamp"] = {"type": "point", "position": [0, 0, 0]}
+    with pytest.raises(ValueError, match=r"ray_bundle: emitter 'lamp' \(PointLight\) is a delta light.*first_shot=true"):
+        scene = mi.load_dict(d, optimize=False)
+        scene.integrator().render(scene, 0, seed=0, spp=1)
 
 
 def test_delta_surface_warns():

@@ -4,7 +4,7 @@ Two estimators, chosen once per render by the ``estimate`` parameter:
 
 - :class:`GatherEstimator` ('gather', the paper's per-pixel variant): at the visible
   point, reflect toward the eye the radiance arriving along +-d from the patch seen in
-  the opposite direction;
+  the opposite direction (or from the environment emitter, when the bundles carry it);
 - :class:`PatchEstimator` ('patch'): reflect the visible patch's incoming power of the
   bundle (sum_j A(i,j,+-d) L[j] / A_i).
 
@@ -111,10 +111,13 @@ class GatherEstimator(Estimator):
             wo = si.to_local(-travel)              # toward its source
             ok = valid & (mi.Frame3f.cos_theta(wo) > 0)
             src = transport.scene.ray_intersect(si.spawn_ray(-travel), ok)
-            ok &= src.is_valid()
-            tri = table.triangle_index(src.shape, src.prim_index)
-            ok &= dr.dot(dr.gather(mi.Normal3f, table.normal, tri, ok), travel) > 0
+            sky = ok & ~src.is_valid() & sources.adds_direct if transport.environment is not None else None
+            ok &= src.is_valid() & (dr.dot(src.n, travel) > 0)     # a source patch facing the point
+            tri = table.patch(src)
             radiance = sources.gathered(transport, state.L, src, tri, chain, side, ok, rng)
+            if sky is not None:                  # the environment seen along -travel
+                radiance += dr.select(sky, mi.Color3f(transport.environment.eval(src, sky)), 0.0)
+                ok |= sky
             result += dr.select(ok, mi.Color3f(bsdf.eval(mi.BSDFContext(), si, wo, ok)) * radiance, 0.0)
         return result * transport.weight
 
@@ -122,7 +125,7 @@ class GatherEstimator(Estimator):
 class PatchEstimator(Estimator):
 
     def reflected(self, si, valid, chain, d, state, incoming, sources, rng):
-        tri = self.transport.layout.table.triangle_index(si.shape, si.prim_index)
+        tri = self.transport.layout.table.patch(si)
         return sources.visible(self.transport, si, tri, chain, d, incoming, valid)
 
 

@@ -184,8 +184,21 @@ class RayBundleIntegrator(CoreIntegrator):
                           "on them; use stochastic_ray or path for such scenes." % ", ".join(names),
                           RuntimeWarning, stacklevel=3)
 
+    def _check_emitters(self, scene):
+        """Without first_shot the bundles carry the emission of surfaces and of the
+        environment: a delta light (point, spot, directional) cannot be carried."""
+        if self.first_shot:
+            return
+        for emitter in scene.emitters():
+            if int(emitter.flags()) & int(mi.EmitterFlags.Delta):
+                raise ValueError("ray_bundle: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
+                                 "with first_shot=false; use first_shot=true (its next-event estimation lights "
+                                 "the patches and the visible points with delta lights)"
+                                 % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
+
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
+        self._check_emitters(scene)
         layout = ChainLayout(MeshTable(scene, "ray_bundle"), self.chains, 2 if self.bidirectional else 1)
         self._warn_delta(scene)
         transport = Transport(scene, layout, self.resolution, self.first_shot, seed)

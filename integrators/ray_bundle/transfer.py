@@ -46,10 +46,10 @@ class IterationState:
 
 
 def bounding_sphere(scene, table):
-    """Centre (the bounding box's) and radius (farthest vertex, slightly enlarged) of a
-    sphere around all triangles."""
+    """Centre (the bounding box's) and radius (farthest patch point, slightly enlarged) of
+    a sphere around all patches."""
     center = np.array(scene.bbox().center(), dtype=np.float64)
-    radius = float(np.sqrt(np.max(np.sum((table.vertices_np - center) ** 2, axis=-1))))
+    radius = float(np.sqrt(np.max(np.sum((table.points_np - center) ** 2, axis=-1))))
     return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
 
 
@@ -79,6 +79,9 @@ class Transport:
         self.rng_lines = seeds.pcg(self.lines, seed, "lines")
         self.rng_patch = seeds.pcg(layout.lanes, seed, "patches")
         self.weight = 4.0 * np.pi / layout.sides      # solid angle per global direction
+        # the environment emitter, a source the bundles carry (with first_shot it is
+        # direct light, estimated by next-event estimation instead)
+        self.environment = None if first_shot else scene.environment()
 
     def state(self):
         return self.rng_lines.state, self.rng_patch.state
@@ -127,24 +130,43 @@ class Transport:
         incoming = dr.zeros(mi.Color3f, layout.lanes)
         back = layout.sides - 1          # the side whose radiance travels along -d
         L, scene, area = state.L, self.scene, cell * cell
+        sky_ahead, sky_behind = self.sky(d)
 
-        def body(ray, active, prev, prev_fwd):
+        def body(ray, active, prev, prev_fwd, first):
             pi = scene.ray_intersect_preliminary(ray, active)
             hit = active & pi.is_valid()
-            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, hit)
-            tri = table.triangle_index(si.shape, si.prim_index)
-            cos_d = dr.dot(dr.gather(mi.Normal3f, table.normal, tri, hit), d)
-            slot = layout.slot_of(tri, chain)
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV, hit)   # uv: patches of analytic shapes
+            cos_d = dr.dot(si.n, d)              # Mitsuba's orientation (flip_normals included)
+            slot = layout.slot_of(table.patch(si), chain)
             exchange = hit & prev_fwd & (cos_d < 0)
             dr.scatter_add(incoming, dr.gather(mi.Color3f, L, prev, exchange) * area, slot, exchange, mode=SPLAT_MODE)
             if back:
                 dr.scatter_add(incoming, dr.gather(mi.Color3f, L, slot + back * layout.slots, exchange) * area,
                                prev + back * layout.slots, exchange, mode=SPLAT_MODE)
-            return si.spawn_ray(d), hit, slot, hit & (cos_d > 0)
+            if self.environment is not None:     # the first surface on a line sees the sky behind it
+                lit = hit & first & (cos_d < 0)
+                dr.scatter_add(incoming, sky_behind * area, slot, lit, mode=SPLAT_MODE)
+                if back:                         # a line leaving the scene: its last surface sees the sky
+                    lit = active & ~pi.is_valid() & prev_fwd
+                    dr.scatter_add(incoming, sky_ahead * area, prev + back * layout.slots, lit, mode=SPLAT_MODE)
+            return si.spawn_ray(d), hit, slot, hit & (cos_d > 0), first & ~hit
 
+        # loop state: the line's ray, whether it is still inside the scene, the slot of
+        # its previous hit, whether that hit faces +d (sends along it), no hit yet
         dr.while_loop((ray, (u * u + v * v) <= self.radius * self.radius, dr.zeros(mi.UInt32, self.lines),
-                       mi.Bool(False)), lambda ray, active, prev, prev_fwd: active, body)
+                       mi.Bool(False), mi.Bool(True)), lambda ray, active, prev, prev_fwd, first: active, body)
         return incoming
+
+    def sky(self, d):
+        """The environment's radiance arriving along -d (seen looking along +d) and along
+        +d (seen looking along -d); zero without an environment emitter the bundles carry."""
+        if self.environment is None:
+            return mi.Color3f(0.0), mi.Color3f(0.0)
+        look = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+        look.wi = -d                             # a miss along +d has si.wi = -d
+        ahead = mi.Color3f(self.environment.eval(look))
+        look.wi = d
+        return ahead, mi.Color3f(self.environment.eval(look))
 
     def reflect(self, state, incoming, new_dirs):
         """The next iteration's radiance along every side of ``new_dirs``:

@@ -1,0 +1,144 @@
+"""Patches of Mitsuba's analytic shapes for the finite-element algorithms.
+
+``rectangle``, ``disk``, ``sphere`` and ``cylinder`` have no triangles; their surface is
+divided into patches along the (u, v) parameterisation that Mitsuba's ray intersections
+report in ``si.uv``. A hit is mapped to its patch from ``si.uv`` alone, so the patches are
+exact pieces of the true surface: no approximating triangles, the geometry the rays see
+and the patches agree. Points of a patch are uniformly distributed in area:
+
+==========  =========================  ====================================  ===========
+shape       local point of (u, v)      cells (``nu`` x ``nv``)               local normal
+==========  =========================  ====================================  ===========
+rectangle   (2u - 1, 2v - 1, 0)        uniform in u and v (equal areas)      +z
+disk        r = u, phi = 2 pi v        rings of equal area x sectors         +z
+sphere      phi = 2 pi u, th = pi v    sectors x uniform bands in theta      outward
+cylinder    phi = 2 pi u, z = v        sectors x uniform in z                outward
+==========  =========================  ====================================  ===========
+
+A shape's ``to_world`` maps the local point (its normal by the inverse transpose;
+``flip_normals`` negates it). The tests check every formula against Mitsuba's own
+intersections (position, uv and normal). The cell count follows the patch size ``h``
+(default: the scene's bounding-box diagonal / :data:`CELLS_PER_DIAGONAL`): radiance is
+constant per patch in these methods, so ``h`` is the spatial resolution of the solution
+on these shapes, as the triangle size is on meshes.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: default patch size: the scene's bounding-box diagonal divided by this
+CELLS_PER_DIAGONAL = 24
+#: analytic shapes (class names as Mitsuba prints them) -> kind code (0: a mesh)
+KINDS = {"Rectangle": 1, "Disk": 2, "Sphere": 3, "Cylinder": 4}
+#: cells per parameter at the most
+MAX_CELLS = 64
+
+
+def shape_kind(shape):
+    """Mitsuba's class name of ``shape`` ('Rectangle', 'Sphere', 'PLYMesh', ...)."""
+    return str(shape).split("[", 1)[0].strip() or type(shape).__name__
+
+
+def local_point(kind, uv):
+    """Local position and normal of the points with parameters ``uv`` on shapes of
+    ``kind`` (JIT arrays, per lane)."""
+    phi_u, phi_v, theta = dr.two_pi * uv.x, dr.two_pi * uv.y, dr.pi * uv.y
+    su, cu = dr.sincos(phi_u)
+    sv, cv = dr.sincos(phi_v)
+    st, ct = dr.sincos(theta)
+    rect = mi.Point3f(2.0 * uv.x - 1.0, 2.0 * uv.y - 1.0, 0.0)
+    disk = mi.Point3f(uv.x * cv, uv.x * sv, 0.0)
+    sphere = mi.Point3f(st * cu, st * su, ct)
+    cylinder = mi.Point3f(cu, su, uv.y)
+    p = dr.select(kind == 1, rect, dr.select(kind == 2, disk, dr.select(kind == 3, sphere, cylinder)))
+    n = dr.select(kind <= 2, mi.Vector3f(0, 0, 1), dr.select(kind == 3, mi.Vector3f(sphere), mi.Vector3f(cu, su, 0.0)))
+    return p, n
+
+
+class ShapeFrame:
+    """A shape's ``to_world`` as JIT-gatherable columns: point = o + ax x + ay y + az z,
+    normal = normalize(nx x + ny y + nz z) (inverse transpose, negated by flip_normals)."""
+
+    def __init__(self, shape):
+        m = np.array(mi.traverse(shape)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        normal = np.linalg.inv(m[:3, :3]).T * (-1.0 if shape.has_flipped_normals() else 1.0)
+        self.columns = np.concatenate([m[:3, 3], m[:3, 0], m[:3, 1], m[:3, 2],
+                                       normal[:, 0], normal[:, 1], normal[:, 2]])
+
+    @staticmethod
+    def apply(columns, p, n):
+        """World position and normal from per-lane ``columns`` (21 Float arrays)."""
+        c = [mi.Vector3f(columns[3 * k], columns[3 * k + 1], columns[3 * k + 2]) for k in range(7)]
+        world = mi.Point3f(c[0] + c[1] * p.x + c[2] * p.y + c[3] * p.z)
+        return world, mi.Normal3f(dr.normalize(c[4] * n.x + c[5] * n.y + c[6] * n.z))
+
+
+def _world(shape, kind, u, v):
+    """numpy (n, 3) world points and normals of parameters ``u``, ``v`` on ``shape``."""
+    cols = ShapeFrame(shape).columns
+    uv = mi.Point2f(np.asarray(u, dtype=np.float32), np.asarray(v, dtype=np.float32))
+    p, n = ShapeFrame.apply([mi.Float(float(x)) for x in cols], *local_point(mi.UInt32(kind), uv))
+    return np.array(p, dtype=np.float64).T, np.array(n, dtype=np.float64).T
+
+
+def _count(length, h, lo=1):
+    return int(np.clip(np.ceil(length / h), lo, MAX_CELLS))
+
+
+class ShapePatches:
+    """The patches of one analytic shape: ``nu`` x ``nv`` cells (patch ``iv * nu + iu``)
+    with their uv bounds, exact areas, and normals at the cell centres."""
+
+    def __init__(self, shape, h):
+        self.kind = kind = KINDS[shape_kind(shape)]
+        self.frame = ShapeFrame(shape)
+        c, pu, pv, opposite = _world(shape, kind, [0, 1, 0, 0.5], [0, 0, 1, 0])[0]
+        if kind == 1:
+            nu, nv = _count(np.linalg.norm(pu - c), h), _count(np.linalg.norm(pv - c), h)
+        elif kind == 2:             # p(0, .) is the centre, p(1, 0) on the rim
+            radius = np.linalg.norm(pu - c)
+            nu, nv = _count(radius, h), _count(2 * np.pi * radius, h, lo=6)
+        elif kind == 3:             # p(., 0) and p(., 1) are the poles
+            nu = _count(np.pi * np.linalg.norm(pv - c), h, lo=8)
+            nv = max(4, nu // 2)
+        else:                       # p(0, 0) and p(0.5, 0): a diameter; v along the axis
+            nu, nv = _count(np.pi * np.linalg.norm(opposite - c), h, lo=8), _count(np.linalg.norm(pv - c), h)
+        self.nu, self.nv = nu, nv
+        iu, iv = (a.ravel() for a in np.meshgrid(np.arange(nu), np.arange(nv)))
+        u0, u1, v0, v1 = iu / nu, (iu + 1) / nu, iv / nv, (iv + 1) / nv
+        if kind == 2:               # rings of equal area: r in [sqrt(k/n), sqrt((k+1)/n)]
+            u0, u1 = np.sqrt(u0), np.sqrt(u1)
+            share = (u1 ** 2 - u0 ** 2) * (v1 - v0)
+        elif kind == 3:             # dphi / 2pi * (cos th0 - cos th1) / 2
+            share = (u1 - u0) * 0.5 * (np.cos(np.pi * v0) - np.cos(np.pi * v1))
+        else:
+            share = (u1 - u0) * (v1 - v0)
+        self.bounds = np.stack([u0, u1, v0, v1], axis=1)
+        self.areas = share * float(dr.slice(shape.surface_area()))
+        mid_u = np.sqrt(0.5 * (u0 ** 2 + u1 ** 2)) if kind == 2 else 0.5 * (u0 + u1)
+        mid_v = (np.arccos(0.5 * (np.cos(np.pi * v0) + np.cos(np.pi * v1))) / np.pi) if kind == 3 else 0.5 * (v0 + v1)
+        self.centres, self.normals = _world(shape, kind, mid_u, mid_v)
+
+    @property
+    def count(self):
+        return self.nu * self.nv
+
+
+def cell_of(kind, nu, nv, uv):
+    """Patch index within its shape of the points with parameters ``uv`` (JIT arrays;
+    ``kind``, ``nu``, ``nv`` per lane)."""
+    u = dr.select(kind == 2, uv.x * uv.x, uv.x)
+    iu = dr.minimum(mi.UInt32(dr.maximum(u, 0.0) * mi.Float(nu)), nu - 1)
+    iv = dr.minimum(mi.UInt32(dr.maximum(uv.y, 0.0) * mi.Float(nv)), nv - 1)
+    return iv * nu + iu
+
+
+def sample_cell(kind, bounds, sample):
+    """Parameters (u, v) of uniformly distributed area points of cells with ``bounds``
+    (u0, u1, v0, v1 per lane) of shapes of ``kind``."""
+    u0, u1, v0, v1 = bounds
+    u = dr.select(kind == 2, dr.sqrt(dr.lerp(u0 * u0, u1 * u1, sample.x)), dr.lerp(u0, u1, sample.x))
+    c0, c1 = dr.cos(dr.pi * v0), dr.cos(dr.pi * v1)
+    v = dr.select(kind == 3, dr.acos(dr.clip(dr.lerp(c0, c1, sample.y), -1.0, 1.0)) / dr.pi,
+                  dr.lerp(v0, v1, sample.y))
+    return mi.Point2f(u, v)

@@ -1,0 +1,91 @@
+"""The per-patch tables of the finite-element integrators: triangles of meshes (with
+Mitsuba's orientation) and the patches of the analytic shapes, checked against Mitsuba's
+own ray intersections."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mi_plugins.meshtable import MeshTable, NonMeshShapeError
+
+import budget
+
+T = mi.ScalarTransform4f
+SHAPES = {
+    "rectangle": {"type": "rectangle", "to_world": T().translate([0, 1, 0]).rotate([1, 0, 0], -90).scale([2, 3, 1])},
+    "rectangle_flipped": {"type": "rectangle", "flip_normals": True, "to_world": T().rotate([0, 1, 1], 30)},
+    "disk": {"type": "disk", "flip_normals": True, "to_world": T().translate([0, 1, 0]).rotate([1, 0, 0], 90).scale(2)},
+    "sphere": {"type": "sphere", "center": [1, 2, 3], "radius": 0.5},
+    "sphere_flipped": {"type": "sphere", "flip_normals": True, "to_world": T().scale(1.5)},
+    "cylinder": {"type": "cylinder", "p0": [0, 0, 1], "p1": [0, 2, 1], "radius": 0.3},
+    "cube_flipped": {"type": "cube", "flip_normals": True},
+    "obj_like_mesh": {"type": "cube", "to_world": T().rotate([1, 1, 0], 20).scale([1, 2, 0.5])},
+}
+
+
+def _points(name, h=0.3):
+    scene = mi.load_dict({"type": "scene", "s": SHAPES[name]})
+    table = MeshTable(scene, "test", h=h)
+    tri = dr.arange(mi.UInt32, table.count)
+    rng = budget.rng(3)
+    si = table.surface_interaction(tri, mi.Point2f(rng.random(table.count), rng.random(table.count)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    return scene, table, si, hit
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+def test_patch_points_are_where_mitsubas_rays_find_them(name):
+    """Every patch point, seen along its normal from the front, is hit by Mitsuba at the
+    same position, with the same uv and normal (flip_normals included), and the hit maps
+    back to the same patch."""
+    scene, table, si, hit = _points(name)
+    assert np.all(np.array(hit.is_valid()))
+    assert np.abs(np.array(hit.p) - np.array(si.p)).max() < 1e-5
+    assert np.abs(np.array(hit.n) - np.array(si.n)).max() < 1e-5
+    if not name.startswith(("cube", "obj")):
+        duv = np.abs(np.array(hit.uv) - np.array(si.uv))
+        assert np.minimum(duv, 1 - duv).max() < 1e-5
+    assert np.array_equal(np.array(table.patch(hit)), np.arange(table.count))
+    assert table.areas_np.sum() == pytest.approx(float(dr.slice(scene.shapes()[0].surface_area())), rel=1e-5)
+    # the tables' flat normals agree with the normal at the patch (cells: within the cell)
+    cos = np.sum(table.normals_np * np.array(si.n).T, axis=1)
+    assert cos.min() > 0.8
+
+
+@pytest.mark.parametrize("name", ["rectangle", "disk", "sphere", "cylinder"])
+def test_patch_points_are_uniform_in_area(name):
+    assert _uniform_in_area(name)
+
+
+@pytest.mark.parametrize("name", ["disk", "sphere"])
+def test_points_uniform_in_uv_would_fail(name, monkeypatch):
+    """The test of the test: points uniform in (u, v) are not uniform in area on the disk
+    and the sphere."""
+    from mi_plugins import tessellation
+    monkeypatch.setattr(tessellation, "sample_cell", lambda kind, b, s: mi.Point2f(dr.lerp(b[0], b[1], s.x),
+                                                                                 dr.lerp(b[2], b[3], s.y)))
+    assert not _uniform_in_area(name)
+
+
+def _uniform_in_area(name):
+    """The points of every patch are uniformly distributed in area: over all patches,
+    the share of points in each patch equals its share of the area (chi-square)."""
+    scene = mi.load_dict({"type": "scene", "s": SHAPES[name]})
+    table = MeshTable(scene, "test", h=0.6)
+    n = 200000
+    rng = budget.rng(4)
+    # a random patch with probability proportional to area, a point in it: then map the
+    # point to the finer sub-cells of a second table and compare with their areas
+    fine = MeshTable(scene, "test", h=0.15)
+    tri = mi.UInt32(rng.choice(table.count, size=n, p=table.areas_np / table.areas_np.sum()))
+    si = table.surface_interaction(tri, mi.Point2f(rng.random(n), rng.random(n)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    counts = np.bincount(np.array(fine.patch(hit)), minlength=fine.count)
+    return budget.chi2_counts(counts, n * fine.areas_np / fine.areas_np.sum())
+
+
+def test_a_shape_without_patches_is_refused_by_name():
+    scene = mi.load_dict({"type": "scene", "group": {"type": "shapegroup", "s": {"type": "cube"}},
+                          "inst": {"type": "instance", "shapegroup": {"type": "ref", "id": "group"}}})
+    with pytest.raises(NonMeshShapeError, match=r"ray_bundle: shape 'inst' \(Instance\) is neither a triangle mesh"):
+        MeshTable(scene, "ray_bundle")
