@@ -26,6 +26,12 @@ def _box_corners(bbox):
     return np.array([[(hi if k >> j & 1 else lo)[j] for j in range(3)] for k in range(8)])
 
 
+def _reflects_on_both_sides(shape):
+    bsdf = shape.bsdf()
+    flags = int(bsdf.flags()) if bsdf is not None else 0
+    return bool(flags & int(mi.BSDFFlags.BackSide)) and bool(flags & int(mi.BSDFFlags.Smooth))
+
+
 def _is_mesh(shape):
     return isinstance(shape, mi.Mesh) and "vertex_positions" in mi.traverse(shape).keys()
 
@@ -44,9 +50,16 @@ def require_meshes(scene, who):
 
 class MeshTable:
     """All patches of ``scene``'s shapes, numbered 0 .. count-1; ``h``: the patch size of
-    analytic shapes (default: bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL)."""
+    analytic shapes (default: bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL).
 
-    def __init__(self, scene, who="mi_plugins", h=None):
+    With ``back_sides``, the surfaces whose BSDF reflects on both sides (``twosided``:
+    the BackSide flag with a non-delta lobe) get a second patch per patch, numbered
+    ``front_count`` .. count-1: same geometry and surface frame (the BSDF decides by the
+    side of ``si.wi``), orientation ``normal`` reversed; :meth:`side_patch` picks the side."""
+
+    NONE = 0xFFFFFFFF
+
+    def __init__(self, scene, who="mi_plugins", h=None, back_sides=False):
         require_meshes(scene, who)
         self.scene = scene
         self.meshes = self.shapes = list(scene.shapes())
@@ -55,8 +68,16 @@ class MeshTable:
         parts = [self._mesh_part(m) if _is_mesh(m) else self._analytic_part(m, h) for m in self.shapes]
         counts = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
-        self.count = int(counts.sum())
-        cat = lambda key: np.concatenate([part[key] for part in parts])
+        self.front_count = int(counts.sum())
+        shape_index = np.repeat(np.arange(len(parts), dtype=np.uint32), counts)
+        two_sided = np.array([back_sides and _reflects_on_both_sides(s) for s in self.shapes], dtype=bool)
+        backs = np.flatnonzero(two_sided[shape_index])
+        back_of = np.full(self.front_count, self.NONE, dtype=np.uint32)
+        back_of[backs] = self.front_count + np.arange(len(backs))
+        self._back_of = mi.UInt32(back_of)
+        self.count = self.front_count + len(backs)
+        # per-patch arrays: the fronts, then the backs (copies of their fronts)
+        cat = lambda key: (lambda a: np.concatenate([a, a[backs]]))(np.concatenate([part[key] for part in parts]))
 
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
 
@@ -66,14 +87,16 @@ class MeshTable:
             return mi.UInt32(table)
 
         self._offset_by_id = by_id(self.face_offsets)
-        self._kind_by_id = by_id([p["kind"] for p in parts])
+        self._kind_by_id = by_id([p["kind"][0] if len(p["kind"]) else 0 for p in parts])
         self._nu_by_id = by_id([p["nu"] for p in parts])
         self._nv_by_id = by_id([p["nv"] for p in parts])
 
-        self.areas_np, self.normals_np = cat("area"), cat("normal")
+        self.areas_np = cat("area")
+        surface_normals = cat("normal")
+        self.normals_np = surface_normals * np.where(np.arange(self.count) >= self.front_count, -1.0, 1.0)[:, None]
         #: points whose convex hull holds every patch (triangle vertices, analytic shapes' boxes)
         self.points_np = np.concatenate([part["points"] for part in parts])
-        self.shape_index_np = np.repeat(np.arange(len(parts), dtype=np.uint32), counts)
+        self.shape_index_np = np.concatenate([shape_index, shape_index[backs]])
         tri = cat("triangle")
         self.p0 = mi.Point3f(*tri[:, 0].T)
         self.e1 = mi.Vector3f(*(tri[:, 1] - tri[:, 0]).T)
@@ -82,14 +105,24 @@ class MeshTable:
         self.uv0 = mi.Point2f(*uv[:, 0].T)
         self.duv1 = mi.Vector2f(*(uv[:, 1] - uv[:, 0]).T)
         self.duv2 = mi.Vector2f(*(uv[:, 2] - uv[:, 0]).T)
-        self.kind = mi.UInt32(np.repeat([p["kind"] for p in parts], counts).astype(np.uint32))
+        self.kind = mi.UInt32(cat("kind"))
+        self.prim = mi.UInt32(cat("prim"))
         bounds = cat("bounds")
         self.bounds = tuple(mi.Float(bounds[:, k]) for k in range(4))
         frame = cat("frame")
         self.frame = [mi.Float(frame[:, k]) for k in range(frame.shape[1])]
-        self.normal = mi.Normal3f(*self.normals_np.T)
+        self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
+        self.surface_normal = mi.Normal3f(*surface_normals.T)   # the surface's (Mitsuba's si.n)
         self.area = mi.Float(self.areas_np)
         self.shape_index = mi.UInt32(self.shape_index_np)
+
+    def side_patch(self, si, toward):
+        """The patch of hits ``si`` on the side facing ``toward`` (world directions), and
+        whether that side exists (one-sided surfaces have none at the back)."""
+        front = self.patch(si)
+        facing = dr.dot(si.n, toward) > 0
+        back = dr.gather(mi.UInt32, self._back_of, front, ~facing)
+        return dr.select(facing, front, back), facing | (back != self.NONE)
 
     @staticmethod
     def _mesh_part(mesh):
@@ -105,16 +138,17 @@ class MeshTable:
         if mesh.has_flipped_normals():      # Mitsuba's orientation: flip_normals negates the winding's
             cross = -cross
         area = 0.5 * np.linalg.norm(cross, axis=1)
-        return dict(kind=0, nu=0, nv=0, area=area, normal=cross / np.maximum(2 * area[:, None], 1e-30),
-                    triangle=p, uv=uv, bounds=np.zeros((len(faces), 4)), frame=np.zeros((len(faces), 21)),
+        n = len(faces)
+        return dict(kind=np.zeros(n, np.uint32), prim=np.arange(n, dtype=np.uint32), nu=0, nv=0, area=area,
+                    normal=cross / np.maximum(2 * area[:, None], 1e-30), triangle=p, uv=uv, bounds=np.zeros((n, 4)), frame=np.zeros((n, 21)),
                     points=p.reshape(-1, 3))
 
     @staticmethod
     def _analytic_part(shape, h):
         cells = tessellation.ShapePatches(shape, h)
         n = cells.count
-        return dict(kind=cells.kind, nu=cells.nu, nv=cells.nv, area=cells.areas, normal=cells.normals,
-                    triangle=np.zeros((n, 3, 3)), uv=np.zeros((n, 3, 2)), bounds=cells.bounds,
+        return dict(kind=np.full(n, cells.kind, np.uint32), prim=np.zeros(n, np.uint32), nu=cells.nu, nv=cells.nv,
+                    area=cells.areas, normal=cells.normals, triangle=np.zeros((n, 3, 3)), uv=np.zeros((n, 3, 2)), bounds=cells.bounds,
                     frame=np.tile(cells.frame.columns, (n, 1)), points=_box_corners(shape.bbox()))
 
     def patch(self, si):
@@ -136,16 +170,15 @@ class MeshTable:
 
     def surface_interaction(self, tri, sample, wi_world=None):
         """SurfaceInteraction3f at a uniformly distributed point (in area) of each patch
-        ``tri`` (UInt32), with position, normal/frame, uv, shape and primitive; on
-        triangles the flat normal, on analytic shapes the shape's own
-        ``eval_parameterization``."""
+        ``tri`` (UInt32), with position, the surface's normal and frame (Mitsuba's, also
+        for back sides), uv, shape and primitive."""
         g = lambda arr, t: dr.gather(t, arr, tri)
         kind = g(self.kind, mi.UInt32)
         analytic = kind != 0
         b = mi.warp.square_to_uniform_triangle(sample)
         p0, e1, e2 = g(self.p0, mi.Point3f), g(self.e1, mi.Vector3f), g(self.e2, mi.Vector3f)
         uv0, duv1, duv2 = g(self.uv0, mi.Point2f), g(self.duv1, mi.Vector2f), g(self.duv2, mi.Vector2f)
-        n = g(self.normal, mi.Normal3f)
+        n = g(self.surface_normal, mi.Normal3f)
         shape = self.shape_pointer(tri)
         uv = tessellation.sample_cell(kind, tuple(g(x, mi.Float) for x in self.bounds), sample)
         cell_p, cell_n = tessellation.ShapeFrame.apply([g(x, mi.Float) for x in self.frame],
@@ -156,8 +189,7 @@ class MeshTable:
         si.n = dr.select(analytic, cell_n, n)
         si.sh_frame = mi.Frame3f(si.n)
         si.shape = shape
-        si.prim_index = dr.select(analytic, 0, tri - dr.gather(mi.UInt32, mi.UInt32(self.face_offsets),
-                                                               dr.gather(mi.UInt32, self.shape_index, tri)))
+        si.prim_index = g(self.prim, mi.UInt32)
         si.time = 0.0
         si.t = 0.0
         if wi_world is not None:

@@ -71,7 +71,9 @@ class AveragedSources:
     def visible(self, transport, si, tri, chain, d, incoming, active):
         use = active & self.average.is_averaged(tri, active)
         # a diffuse BSDF's value does not depend on the directions: take it at the normal
-        f = mi.Color3f(si.bsdf().eval(mi.BSDFContext(), si, mi.Vector3f(0, 0, 1), use))
+        # on the side of si.wi
+        wo = mi.Vector3f(0, 0, dr.sign(mi.Frame3f.cos_theta(si.wi)))
+        f = mi.Color3f(si.bsdf().eval(mi.BSDFContext(), si, wo, use))
         return dr.select(use, f * self.average.mean(tri, use), 0.0)
 
 
@@ -108,12 +110,12 @@ class GatherEstimator(Estimator):
         result = mi.Color3f(0.0)
         for side in range(transport.layout.sides):
             travel = d * (1.0 - 2.0 * side)       # the radiance travels along `travel`
-            wo = si.to_local(-travel)              # toward its source
-            ok = valid & (mi.Frame3f.cos_theta(wo) > 0)
+            wo = si.to_local(-travel)              # toward its source, on the side of si.wi
+            ok = valid & (mi.Frame3f.cos_theta(wo) * mi.Frame3f.cos_theta(si.wi) > 0)
             src = transport.scene.ray_intersect(si.spawn_ray(-travel), ok)
             sky = ok & ~src.is_valid() & sources.adds_direct if transport.environment is not None else None
-            ok &= src.is_valid() & (dr.dot(src.n, travel) > 0)     # a source patch facing the point
-            tri = table.patch(src)
+            tri, facing = table.side_patch(src, travel)           # the source's side facing the point
+            ok &= src.is_valid() & facing
             radiance = sources.gathered(transport, state.L, src, tri, chain, side, ok, rng)
             if sky is not None:                  # the environment seen along -travel
                 radiance += dr.select(sky, mi.Color3f(transport.environment.eval(src, sky)), 0.0)
@@ -125,8 +127,8 @@ class GatherEstimator(Estimator):
 class PatchEstimator(Estimator):
 
     def reflected(self, si, valid, chain, d, state, incoming, sources, rng):
-        tri = self.transport.layout.table.patch(si)
-        return sources.visible(self.transport, si, tri, chain, d, incoming, valid)
+        tri, facing = self.transport.layout.table.side_patch(si, si.to_world(si.wi))   # the side the eye sees
+        return sources.visible(self.transport, si, tri, chain, d, incoming, valid & facing)
 
 
 ESTIMATORS = {"gather": GatherEstimator, "patch": PatchEstimator}

@@ -21,8 +21,8 @@ class RayBundleIntegrator(CoreIntegrator):
     ``ray_bundle`` (stochastic iteration, global ray bundles)
     ---------------------------------------------------------
 
-    Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the triangles
-    of the scene's meshes. Each patch keeps only its radiance in the current global
+    Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the patches of
+    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the current global
     direction w_m (and -w_m when ``bidirectional``). Each iteration transfers all patch
     radiances along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines
     across the scene's bounding sphere (jittered every iteration; every line walks ALL its
@@ -123,15 +123,19 @@ class RayBundleIntegrator(CoreIntegrator):
     final gathering after the iterations (and also during them when the scene has
     non-diffuse patches); ``iteration_count(spp)`` and the progress bar count both.
     Camera rays are followed through purely specular surfaces to the first non-delta one.
-    **Restrictions:** triangle meshes only: an analytic ``sphere``, ``rectangle``, ...
-    raises ``NonMeshShapeError`` naming the shape (use ``ply``/``obj`` meshes, e.g. the
-    ``sphere_mesh`` geometry). Transport *through* delta (mirror/glass) surfaces cannot be
-    captured by random global directions: a ``RuntimeWarning`` names the shapes with delta
-    lobes. The radiance is constant per patch: where the true radiance varies within a
-    triangle the result is its patch average (exact in the furnace and
-    constant-radiance cases; on the tessellated diffuse sphere the only tolerance is the
-    case's documented mesh bias, because a sphere's point-to-patch form factor is the same
-    for every receiving point).
+    **Scenes:** patches are the triangles of meshes and cells of the analytic
+    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along their own uv (size: the
+    bounding-box diagonal / 24); other shapes raise ``NonMeshShapeError`` naming the shape.
+    Orientation is Mitsuba's (winding, ``flip_normals``): one-sided BSDFs send and receive
+    on their front only, two-sided ones (``twosided``) have a patch per side. The
+    environment emitter (``constant``, ``envmap``) lights the patches through the bundles
+    (with ``first_shot`` by next-event estimation) and is seen by the camera; delta lights
+    (``point``, ``spot``, ``directional``) need ``first_shot=true`` (an error says so).
+    Transport *through* delta (mirror/glass) surfaces cannot be captured by random global
+    directions: a ``RuntimeWarning`` names the shapes with delta lobes. The radiance is
+    constant per patch: where the true radiance varies within a patch the result is its
+    patch average (exact in the furnace and constant-radiance cases, and on spheres, whose
+    point-to-patch form factor is the same for every receiving point).
 
     .. code-block:: python
 
@@ -199,7 +203,7 @@ class RayBundleIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
         self._check_emitters(scene)
-        layout = ChainLayout(MeshTable(scene, "ray_bundle"), self.chains, 2 if self.bidirectional else 1)
+        layout = ChainLayout(MeshTable(scene, "ray_bundle", back_sides=True), self.chains, 2 if self.bidirectional else 1)
         self._warn_delta(scene)
         transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
         total, burn_in = self.iterations * frame.spp, self.burn_in

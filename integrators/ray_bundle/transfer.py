@@ -61,10 +61,11 @@ def direct_light_mis(scene, si, bsdf, rng, active):
 
 
 def bsdf_over_cosine(si, incoming, towards_source):
-    """f(towards_source -> si.wi) * incoming, with f = bsdf.eval / cos."""
+    """f(towards_source -> si.wi) * incoming, with f = bsdf.eval / |cos|, for sources on
+    the side of ``si.wi`` (the back side of two-sided BSDFs included)."""
     bsdf = si.bsdf()
     wo = si.to_local(towards_source)
-    cos_in = mi.Frame3f.cos_theta(wo)
+    cos_in = mi.Frame3f.cos_theta(wo) * dr.sign(mi.Frame3f.cos_theta(si.wi))
     value = mi.Color3f(bsdf.eval(mi.BSDFContext(), si, wo, cos_in > 1e-6))
     return dr.select(cos_in > 1e-6, value / cos_in, 0.0) * incoming
 
@@ -136,20 +137,22 @@ class Transport:
             pi = scene.ray_intersect_preliminary(ray, active)
             hit = active & pi.is_valid()
             si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV, hit)   # uv: patches of analytic shapes
-            cos_d = dr.dot(si.n, d)              # Mitsuba's orientation (flip_normals included)
-            slot = layout.slot_of(table.patch(si), chain)
-            exchange = hit & prev_fwd & (cos_d < 0)
+            # the side facing the line's origin receives, the side facing ahead sends
+            # (Mitsuba's orientation, flip_normals included; one-sided surfaces have one)
+            receiver, receives = table.side_patch(si, -d)
+            sender, sends = table.side_patch(si, d)
+            slot, exchange = layout.slot_of(receiver, chain), hit & receives & prev_fwd
             dr.scatter_add(incoming, dr.gather(mi.Color3f, L, prev, exchange) * area, slot, exchange, mode=SPLAT_MODE)
             if back:
                 dr.scatter_add(incoming, dr.gather(mi.Color3f, L, slot + back * layout.slots, exchange) * area,
                                prev + back * layout.slots, exchange, mode=SPLAT_MODE)
             if self.environment is not None:     # the first surface on a line sees the sky behind it
-                lit = hit & first & (cos_d < 0)
+                lit = hit & first & receives
                 dr.scatter_add(incoming, sky_behind * area, slot, lit, mode=SPLAT_MODE)
                 if back:                         # a line leaving the scene: its last surface sees the sky
                     lit = active & ~pi.is_valid() & prev_fwd
                     dr.scatter_add(incoming, sky_ahead * area, prev + back * layout.slots, lit, mode=SPLAT_MODE)
-            return si.spawn_ray(d), hit, slot, hit & (cos_d > 0), first & ~hit
+            return si.spawn_ray(d), hit, layout.slot_of(sender, chain), hit & sends, first & ~hit
 
         # loop state: the line's ray, whether it is still inside the scene, the slot of
         # its previous hit, whether that hit faces +d (sends along it), no hit yet
