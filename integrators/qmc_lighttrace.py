@@ -1,6 +1,6 @@
 """``qmc_lighttrace``: Keller's quasi-Monte Carlo light tracing in the radiosity setting
 (A. Keller, "A quasi-Monte Carlo algorithm for the global illumination problem in the
-radiosity setting", 1994): a particle preprocess that deposits power on triangles, then a
+radiosity setting", 1994): a particle preprocess that deposits power on patches, then a
 render with direct light and final gathering. The user reference is the class docstring.
 """
 import drjit as dr
@@ -15,6 +15,12 @@ from mi_plugins.params import Params
 from mi_plugins.sampling import direct_light
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
+HEADROOM = 2.0 ** 12  #: fixed point: deposits above HEADROOM x the largest particle power are clamped
+
+
+def patch_side(table, si):
+    """2 x patch + side of hits ``si``: side 0 is the one the normal points to."""
+    return table.patch(si) * 2 + dr.select(mi.Frame3f.cos_theta(si.wi) < 0, 1, 0)
 
 
 class QMCLightTraceIntegrator(CoreIntegrator):
@@ -24,17 +30,19 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     ``qmc_lighttrace`` (Keller 1994, quasi-Monte Carlo light tracing)
     -----------------------------------------------------------------
 
-    Preprocess: N particle paths from the lights, path i driven by point i of a
-    (2M + 4)-dimensional sequence (0-1: light choice and position, 2-3: direction, two per
-    bounce), depositing power on every triangle hit up to M + 1 hits; L_k = rho_k /
-    (pi |A_k|) x incoming power (eqs. 7-8), with optional adaptive termination (section
-    4: batches until the area-weighted change Delta E stays below ``epsilon`` for
-    ``patience`` batches). Render: eye rays from the sensor's sampler (mirrors and glass
-    followed), emission + direct light (one light sample and one BSDF sample combined by
-    multiple importance sampling: a light sample alone has infinite variance where
-    emitting surfaces meet) + SR cosine final-gather rays reading L_k (a gather ray that
-    meets a mirror follows it). The image contains paths of up to M + 3 segments:
-    compare with ``case.expected(max_depth=M + 3)`` (or use a large M).
+    Preprocess: N particle paths from the lights (surfaces, environment, delta lights),
+    path i driven by point i of a (2M + 4)-dimensional sequence (0-1: light choice and
+    position, 2-3: direction, two per bounce), depositing power on every patch hit up to
+    M + 1 hits, per side (a one-sided BSDF hit from behind absorbs; ``twosided`` keeps
+    its sides apart), in 64-bit fixed point (a seed gives the same image every time);
+    L_k = rho_k / (pi |A_k|) x incoming power (eqs. 7-8); optional adaptive termination
+    (section 4: batches until the area-weighted change Delta E, relative to the emitted
+    power / pi, stays below ``epsilon`` for ``patience`` batches). Render: eye rays from the
+    sensor's sampler (mirrors and glass followed), emission + direct light (one light
+    sample and one BSDF sample combined by multiple importance sampling: a light sample
+    alone has infinite variance where emitting surfaces meet) + SR cosine final-gather rays
+    reading L_k of the side they reach (following mirrors). The image contains paths of up
+    to M + 3 segments: compare with ``case.expected(max_depth=M + 3)`` (or use a large M).
 
     .. pluginparameters::
 
@@ -89,11 +97,13 @@ class QMCLightTraceIntegrator(CoreIntegrator):
        - false
        - do not show directly visible emitters
 
-    Triangle meshes only (a clear error names a non-mesh shape). After a render,
-    ``integrator.triangle_radiance`` (numpy (K, 3), L0 + reflected),
-    ``reflected_radiance``, ``triangle_areas``, ``paths_used`` and ``delta_e_history``
-    hold the preprocessing result; ``integrator.preprocess(scene, seed)`` runs it alone.
-    Radiosity setting: the matrix reports cases with non-diffuse BSDFs as not applicable.
+    Patches: the triangles of meshes, cells of ``rectangle``, ``disk``, ``sphere`` and
+    ``cylinder`` (``mi_plugins.meshtable``; other shapes are refused by name). After a render,
+    ``integrator.triangle_radiance`` (numpy (K, 2, 3): patch, side (0: the one its normal
+    points to), RGB; L0 + reflected), ``reflected_radiance``, ``triangle_areas``,
+    ``paths_used`` and ``delta_e_history`` hold the preprocessing result;
+    ``integrator.preprocess(scene, seed)`` runs it alone. Radiosity setting: the matrix
+    reports cases with non-diffuse BSDFs as not applicable.
 
     .. code-block:: python
 
@@ -121,112 +131,117 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         self.gather_samples = p.int("gather_samples", 16, lo=1)
         self.share_neighbors = p.bool("share_neighbors", False)
         self.mirror_depth = p.int("mirror_depth", 8, lo=0)
-        dims = 2 * self.max_depth + 4
-        if self.sequence in ("sobol", "halton", "faure") and dims > qmc.max_dim(self.sequence):
-            raise p.conflict(("max_depth", "sequence"),
-                             "max_depth <= %d with sequence '%s': max_depth=%d needs %d dimensions; sequence '%s' "
-                             "has %d" % ((qmc.max_dim(self.sequence) - 4) // 2, self.sequence, self.max_depth, dims,
-                                         self.sequence, qmc.max_dim(self.sequence)))
+        self.dims, limit = 2 * self.max_depth + 4, qmc.max_dim(self.sequence)   # lcg, independent: no limit
+        if self.dims > limit:
+            raise p.conflict(("max_depth", "sequence"), "max_depth <= %d with sequence '%s': max_depth=%d needs %d "
+                             "dimensions; sequence '%s' has %d" % ((limit - 4) // 2, self.sequence, self.max_depth,
+                                                                    self.dims, self.sequence, limit))
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = None
-        self.paths_used = 0
-        self.delta_e_history = []
+        self.paths_used, self.delta_e_history = 0, []
 
     # ------------------------------------------------------------------ preprocessing
-    def _u(self, index, dim, seed):
-        return qmc.sample(self.sequence, index, dim, dims=2 * self.max_depth + 4, scramble=self.scramble, seed=seed)
-
     def _trace_particles(self, scene, table, start, count, seed):
-        """Deposit the power of paths start .. start + count - 1; returns (reflected power
-        per triangle as numpy (K, 3), sum of emitted power weights (3,))."""
-        # opaque offset: every batch reuses the same kernels instead of baking `start` in
-        index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)
-        u = lambda d: self._u(index, d, seed)
+        """Deposit the power of paths start .. start + count - 1 (one kernel); returns
+        (reflected power per patch side, numpy (K, 2, 3), emitted power (3,))."""
+        index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)   # opaque: no recompiling
+        u = lambda d: qmc.sample(self.sequence, index, d, dims=self.dims, scramble=self.scramble, seed=seed)
         # light choice by dimension 0, rescaled and reused with dimension 1 for the position
         emitter_index, choice_weight, u0 = scene.sample_emitter(u(0))
         emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter_index)
         ray, power = emitter.sample_ray(0.0, 0.5, mi.Point2f(u0, u(1)), mi.Point2f(u(2), u(3)))
-        power *= choice_weight
-        emitted = np.array(power, dtype=np.float64).sum(axis=1)
-        deposit = [dr.zeros(mi.Float, table.count) for _ in range(3)]
+        if any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters()):
+            # environment and directional lights: a direction, then a point of a disk across the scene
+            # (Mitsuba 3.9's envmap sample_ray tilts that disk when the map is rotated: wrong power)
+            sphere, it = scene.bbox().bounding_sphere(), dr.zeros(mi.Interaction3f)
+            center, r, it.p = mi.Point3f(sphere.center), sphere.radius * 1.001 + 1e-4, mi.Point3f(sphere.center)
+            infinite = mi.has_flag(emitter.flags(), mi.EmitterFlags.Infinite)
+            ds, radiance = emitter.sample_direction(it, mi.Point2f(u(2), u(3)), infinite)
+            disk = mi.warp.square_to_uniform_disk_concentric(mi.Point2f(u0, u(1)))
+            origin = center + (ds.d + mi.Frame3f(ds.d).to_world(mi.Vector3f(disk.x, disk.y, 0))) * r
+            ray = dr.select(infinite, mi.Ray3f(origin, -ds.d), ray)
+            power = dr.select(infinite, radiance * (dr.pi * r * r), power)
+        power = mi.Color3f(power * choice_weight)
+        emitted = np.array(power, dtype=np.float64)
+        # order-independent sums: 64-bit fixed point (integer atomics), a power-of-two scale
+        # leaving room for count x (M + 1) deposits of up to HEADROOM x the largest power
+        cap = 2.0 ** 63 / (count * (self.max_depth + 1))
+        scale = 2.0 ** np.floor(np.log2(cap / (HEADROOM * max(emitted.max(), 1e-30))))
+        deposit = dr.zeros(mi.UInt64, 6 * table.count)    # [(patch * 2 + side) * 3 + channel]
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        active = dr.any(power != 0)
-        for bounce in range(self.max_depth + 1):  # a loop over path vertices: every path advances together
+        state = (ray,                               # the particle's next ray
+                 power,                             # its power
+                 dr.zeros(mi.UInt32, count),        # surface hits so far (deposits up to M + 1)
+                 dr.any(power != 0))                # still travelling
+
+        def body(ray, power, hits, active):
             si = scene.ray_intersect(ray, active)
             active &= si.is_valid()
             bsdf = si.bsdf(ray)
-            tri = table.triangle_index(si.shape, si.prim_index)
-            rho = bsdf.eval_diffuse_reflectance(si, active)
-            reflected = power * rho
+            # deposit on the sides the BSDF reflects from (a one-sided BSDF hit from behind absorbs)
+            side_flag = dr.select(mi.Frame3f.cos_theta(si.wi) < 0, mi.UInt32(mi.BSDFFlags.BackSide),
+                                  mi.UInt32(mi.BSDFFlags.FrontSide))
+            lit = active & ((bsdf.flags() & side_flag) != 0)
+            value = dr.minimum(power * bsdf.eval_diffuse_reflectance(si, active) * dr.opaque(mi.Float, scale),
+                               dr.opaque(mi.Float, cap))
+            slot = patch_side(table, si) * 3
             for c in range(3):
-                dr.scatter_reduce(dr.ReduceOp.Add, deposit[c], reflected[c], tri, active)
-            if bounce == self.max_depth:
-                break
-            d0, d1 = 4 + 2 * bounce, 5 + 2 * bounce
-            bs, weight = bsdf.sample(ctx, si, u(d0), mi.Point2f(u(d0), u(d1)), active)
-            power *= weight
-            active &= dr.any(power != 0)
-            ray = si.spawn_ray(si.to_world(bs.wo))
-            dr.eval(ray, power, active, deposit)
-        return np.stack([np.array(d, dtype=np.float64) for d in deposit], axis=1), emitted
+                dr.scatter_reduce(dr.ReduceOp.Add, deposit, mi.UInt64(value[c] + 0.5), slot + c, lit)
+            active &= hits < self.max_depth
+            dim = 4 + 2 * dr.minimum(hits, max(self.max_depth - 1, 0))     # dimensions of this bounce
+            bs, weight = bsdf.sample(ctx, si, u(dim), mi.Point2f(u(dim), u(dim + 1)), active)
+            power = dr.select(active, power * weight, 0.0)
+            return si.spawn_ray(si.to_world(bs.wo)), power, hits + 1, active & dr.any(power != 0)
+
+        dr.while_loop(state, lambda ray, power, hits, active: active, body)
+        reflected = np.array(deposit, dtype=np.uint64).astype(np.float64) / scale
+        return reflected.reshape(table.count, 2, 3), emitted.sum(axis=1)
 
     def preprocess(self, scene, seed=0):
-        """Run the particle phase; returns (triangle_radiance (K, 3), triangle_areas (K,))."""
-        table = MeshTable(scene, "qmc_lighttrace")
-        self.table = table
+        """Run the particle phase; returns (triangle_radiance (K, 2, 3), triangle_areas (K,))."""
+        table = self.table = MeshTable(scene, "qmc_lighttrace")
         areas = table.areas_np
-        emission = self._triangle_emission(scene, table)
-        seed = int(seed)
-        total = np.zeros((table.count, 3))
-        emitted = np.zeros(3)
+        total, emitted = np.zeros((table.count, 2, 3)), np.zeros(3)
+        adaptive, done, below, previous = self.epsilon is not None, 0, 0, None
+        goal = self.max_samples if adaptive else self.samples
         self.delta_e_history = []
-        if self.epsilon is None:
-            done = 0
-            while done < self.samples:  # chunks bound the memory; the estimate is the same
-                n = min(1 << 20, self.samples - done)
-                dep, em = self._trace_particles(scene, table, done, n, seed)
-                total += dep
-                emitted += em
-                done += n
-        else:
-            done, below, previous = 0, 0, None
-            norm = None
-            while done < self.max_samples:
-                n = min(self.batch, self.max_samples - done)
-                dep, em = self._trace_particles(scene, table, done, n, seed)
-                total += dep
-                emitted += em
-                done += n
-                current = total / done / (np.pi * areas[:, None])
-                if norm is None:
-                    norm = max(float(np.sum(emission.mean(axis=1) * areas)), 1e-30)
-                if previous is not None:
-                    d = np.linalg.norm(current - previous, axis=1)
-                    delta_e = np.sqrt(np.sum(d * d * areas) / np.sum(areas)) / norm
-                    self.delta_e_history.append(delta_e)
-                    below = below + 1 if delta_e < float(self.epsilon) else 0
-                    if below >= self.patience:
-                        break
-                previous = current
+        while done < goal:  # fixed N: chunks bound the memory (the estimate is the same)
+            n = min(self.batch if adaptive else 1 << 20, goal - done)
+            if scene.emitters():  # a scene without emitters stays black
+                deposit, power = self._trace_particles(scene, table, done, n, int(seed))
+                total, emitted = total + deposit, emitted + power
+            done += n
+            if not adaptive:
+                continue
+            current = total / done / (np.pi * areas[:, None, None])
+            norm = max(float(emitted.mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
+            if previous is not None:
+                d = np.linalg.norm(current - previous, axis=2)
+                delta_e = np.sqrt(np.sum(d * d * areas[:, None]) / np.sum(areas)) / norm
+                self.delta_e_history.append(delta_e)
+                below = below + 1 if delta_e < float(self.epsilon) else 0
+                if below >= self.patience:
+                    break
+            previous = current
         self.paths_used = done
-        self.reflected_radiance = total / done / (np.pi * areas[:, None])
-        self.triangle_radiance = self.reflected_radiance + emission
+        self.reflected_radiance = total / done / (np.pi * areas[:, None, None])
+        self.triangle_radiance = self.reflected_radiance + self._triangle_emission(scene, table)
         self.triangle_areas = areas
         return self.triangle_radiance, areas
 
     def _triangle_emission(self, scene, table):
-        """Diffuse-equivalent emitted radiance of each triangle (at its centroid, along the normal)."""
-        tri = dr.arange(mi.UInt32, table.count)
-        si = table.surface_interaction(tri, mi.Point2f(1.0 / 3.0, 1.0 / 3.0))
-        si.wi = mi.Vector3f(0, 0, 1)
-        emitter = si.emitter(scene)
-        value = emitter.eval(si, emitter != None)  # noqa: E711 (Dr.Jit pointer array)
-        return np.array(value, dtype=np.float64).T
+        """Emitted radiance of each patch side (K, 2, 3), at its centroid along the normal."""
+        si = table.surface_interaction(dr.arange(mi.UInt32, table.count), mi.Point2f(1.0 / 3.0, 1.0 / 3.0))
+        emitter, sides = si.emitter(scene), []
+        for z in (1.0, -1.0):
+            si.wi = mi.Vector3f(0, 0, z)
+            sides.append(np.array(emitter.eval(si, emitter != None), dtype=np.float64).T)  # noqa: E711
+        return np.stack(sides, axis=1)
 
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
         self.preprocess(scene, frame.seed)
-        reflected = mi.Color3f(*(mi.Float(self.reflected_radiance[:, c]) for c in range(3)))
+        reflected = mi.Color3f(*(mi.Float(self.reflected_radiance[..., c].ravel()) for c in range(3)))
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
         rng = seeds.pcg(cam.count, frame.seed, "camera_path")
@@ -234,59 +249,51 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         si = scene.ray_intersect(path.ray, path.reached)
         active = path.reached & si.is_valid()
         bsdf = si.bsdf(path.ray)
-        direct = self._direct(scene, cam.sampler, si, bsdf, active)
+        # direct light: one light sample and one BSDF sample combined by multiple importance sampling
+        # (a light sample alone has infinite variance where emitting surfaces meet, e.g. furnace edges)
+        u = cam.sampler
+        direct = direct_light(scene, si, bsdf, u.next_2d(), active, (u.next_1d(), u.next_2d()))
         gather = self._gather(scene, cam.sampler, rng, si, bsdf, active, reflected)
         if self.share_neighbors:
-            tri = dr.select(active, self.table.triangle_index(si.shape, si.prim_index), 0xFFFFFFFF)
-            gather = self._share(gather, tri, cam)
+            gather = self._share(gather, dr.select(active, patch_side(self.table, si), 0xFFFFFFFF), cam)
         frame.put_camera(cam, path.emission + path.throughput * (direct + gather))
 
-    def _direct(self, scene, sampler, si, bsdf, active):
-        """L0 reflected once (T_f L0): one light sample and one BSDF sample, combined by
-        multiple importance sampling (a light sample alone has infinite variance where
-        emitting surfaces meet, e.g. at the edges of a furnace)."""
-        light_sample = sampler.next_2d()
-        return direct_light(scene, si, bsdf, light_sample, active, (sampler.next_1d(), sampler.next_2d()))
-
     def _gather(self, scene, sampler, rng, si, bsdf, active, reflected):
-        """SR cosine-distributed final-gather rays reading the reflected radiance L_k of the
-        triangle they reach; a ray that reaches a purely specular surface follows it and
-        takes the full radiance found behind it (its emission is not covered by the light
-        sample)."""
+        """SR cosine-distributed final-gather rays (on the side the eye ray arrived from)
+        reading the reflected radiance L_k of the patch side they reach; a ray that reaches
+        a purely specular surface follows it and takes the full radiance found behind it
+        (its emission is not covered by the light sample)."""
         table, ctx = self.table, mi.BSDFContext()
         gather = dr.zeros(mi.Color3f, dr.width(si.p))
         for _ in range(self.gather_samples):  # SR gather rays (a small constant)
             d = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
             pdf = mi.warp.square_to_cosine_hemisphere_pdf(d)
+            d.z = dr.mulsign(d.z, si.wi.z)  # the side the eye ray came from (twosided BSDFs)
             ok = active & (pdf > 0)
             weight = mi.Color3f(bsdf.eval(ctx, si, d, ok)) / dr.select(ok, pdf, 1.0)
-            ray = si.spawn_ray(si.to_world(d))
-            chain = specular_chain(scene, ray, rng, max_bounces=self.mirror_depth)
-            via_mirror = ok & (chain.depth > 0)
+            chain = specular_chain(scene, si.spawn_ray(si.to_world(d)), rng, max_bounces=self.mirror_depth)
             end = scene.ray_intersect(chain.ray, ok & chain.reached)
-            k = table.triangle_index(end.shape, end.prim_index)
-            stored = dr.gather(mi.Color3f, reflected, k, ok & chain.reached & end.is_valid())
-            stored = dr.select(ok & chain.reached & end.is_valid(), stored, 0.0)
-            value = dr.select(via_mirror, chain.emission + chain.throughput * stored, stored)
+            hit = ok & chain.reached & end.is_valid()
+            stored = dr.select(hit, dr.gather(mi.Color3f, reflected, patch_side(table, end), hit), 0.0)
+            value = dr.select(ok & (chain.depth > 0), chain.emission + chain.throughput * stored, stored)
             gather += dr.select(ok, weight * value, 0.0)
         return gather / self.gather_samples
 
     def _share(self, gather, tri, cam):
         """Average each gather result with those of the 8 neighbouring pixels (same sample
-        number) whose eye ray hit the same triangle."""
+        number) whose eye ray hit the same side of the same triangle."""
         width, height, spp = cam.grid_width, cam.grid_height, cam.per_pixel
         lane = dr.arange(mi.UInt32, cam.count)
         pixel, s = lane // spp, lane % spp
         x, y = mi.Int32(pixel % width), mi.Int32(pixel // width)
         total, count = dr.zeros(mi.Color3f, dr.width(lane)), dr.zeros(mi.Float, dr.width(lane))
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                nx, ny = x + dx, y + dy
-                inside = (nx >= 0) & (nx < width) & (ny >= 0) & (ny < height)
-                other = mi.UInt32(dr.select(inside, ny * width + nx, 0)) * spp + s
-                same = inside & (dr.gather(mi.UInt32, tri, other, inside) == tri) & (tri != 0xFFFFFFFF)
-                total += dr.select(same, dr.gather(mi.Color3f, gather, other, same), 0.0)
-                count += dr.select(same, 1.0, 0.0)
+        for dx, dy in ((dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):   # the 3 x 3 neighbourhood
+            nx, ny = x + dx, y + dy
+            inside = (nx >= 0) & (nx < width) & (ny >= 0) & (ny < height)
+            other = mi.UInt32(dr.select(inside, ny * width + nx, 0)) * spp + s
+            same = inside & (dr.gather(mi.UInt32, tri, other, inside) == tri) & (tri != 0xFFFFFFFF)
+            total += dr.select(same, dr.gather(mi.Color3f, gather, other, same), 0.0)
+            count += dr.select(same, 1.0, 0.0)
         return dr.select(count > 0, total / dr.maximum(count, 1.0), gather)
 
     def to_string(self):

@@ -62,6 +62,10 @@ _NON_DIFFUSE = {name: "radiosity setting: the per-triangle radiance assumes diff
 #: constant_brdf_diffuse_sphere)
 SPHERE_NEE_BIAS = 0.003
 _SPHERE_NEE = {"furnace_sphere": SPHERE_NEE_FINDING, "constant_brdf_diffuse_sphere": SPHERE_NEE_FINDING}
+#: the package's integrators with next-event estimation see the same finding on every
+#: analytic-sphere case (their errors are small enough to show it: qmc_lighttrace 1.0011
+#: +- 0.00007 on furnace_sphere)
+_SPHERE_NEE_ALL = dict(_SPHERE_NEE, diffuse_sphere=SPHERE_NEE_FINDING, bekaert_sphere=SPHERE_NEE_FINDING)
 
 #: cases with albedos close to one, where stochastic iteration needs a longer burn-in
 HIGH_ALBEDO_CASES = ("bekaert_box", "bekaert_sphere", "bekaert_sierpinski", "constant_brdf_diffuse_sphere",
@@ -112,6 +116,7 @@ INTEGRATORS = {
     "qmc_lighttrace": IntegratorSpec({"type": "qmc_lighttrace", "max_depth": 29, "samples": 20000},
                                      spp=32, quick_spp=64, quick_params={"gather_samples": 4},
                                      exact_depth=-1, not_applicable=dict(_NON_DIFFUSE, **_MIRRORS),
+                                     known_failures=dict(_SPHERE_NEE_ALL),
                                      bias={name: 1e-4 for name in ("furnace_box", "furnace_sphere", "furnace_sphere_mesh",
                                            "furnace_sierpinski", "keller_cube", "bekaert_box", "bekaert_sierpinski",
                                            "diffuse_sphere", "diffuse_sphere_mesh", "bekaert_sphere",
@@ -130,13 +135,14 @@ INTEGRATORS = {
     "ray_bundle": _ray_bundle({"resolution": 64}, 64, 8, quick_params={"chains": 32}),
     # the same with direct light by next-event estimation (first_shot), in the chain
     # configuration the benchmark uses (64 chains x 32^2 lines)
-    "ray_bundle+first_shot": _ray_bundle({"resolution": 32, "chains": 64, "first_shot": True}, 24, 8),
+    "ray_bundle+first_shot": _ray_bundle({"resolution": 32, "chains": 64, "first_shot": True}, 24, 8,
+                                         known_failures=dict(_SPHERE_NEE_ALL)),
     # and with the final gathering from averaged diffuse patches (average_diffuse). The
     # direct light is averaged too (gather_nee=false): the cases' reflected radiance is
     # constant per patch, but not its direct part where neighbouring faces emit differently
     # (Bekaert box: -0.6 % with gather_nee=true, a discretisation effect, see the tests)
     "ray_bundle+average": _ray_bundle({"resolution": 32, "chains": 64, "first_shot": True, "average_diffuse": True,
-                                       "gather_nee": False}, 24, 8),
+                                       "gather_nee": False}, 24, 8, known_failures=dict(_SPHERE_NEE_ALL)),
 }
 
 
