@@ -35,7 +35,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     position, 2-3: direction, two per bounce), depositing power on every patch hit up to
     M + 1 hits, per side (a one-sided BSDF hit from behind absorbs; ``twosided`` keeps
     its sides apart), in 64-bit fixed point (a seed gives the same patch radiances every
-    time; only the film's float splats may differ in the last bits under load); L_k = rho_k / (pi |A_k|) x incoming power (eqs. 7-8); optional adaptive termination
+    time; only the film's float splats may differ in the last bits under load);
+    L_k = rho_k / (pi |A_k|) x incoming power (eqs. 7-8); optional adaptive termination
     (section 4: batches until the area-weighted change Delta E, relative to the emitted
     power / pi, stays below ``epsilon`` for ``patience`` batches). Render: eye rays from the
     sensor's sampler (mirrors and glass followed), emission + direct light (one light
