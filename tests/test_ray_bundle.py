@@ -177,7 +177,7 @@ def test_error_shrinks_like_inverse_sqrt_of_iterations():
     """One chain (the paper's algorithm): 4x the averaged iterations halve the RMSE.
     A ratio of 1 (iterations not averaged) or 4 (1/iterations) is outside the bounds."""
     # measured over 24 seed blocks: 1.73 .. 2.30 (median 1.94, log-SD 0.071)
-    budget.ratio("ray_bundle.rmse_ratio_iterations", rmse_ratio_iterations(0), 1.3, 2.9)
+    budget.ratio("ray_bundle.rmse_ratio_iterations", rmse_ratio_iterations(0), 1.25, 3.2)
 
 
 def test_chains_are_independent_and_averaged():
@@ -189,8 +189,8 @@ def test_chains_are_independent_and_averaged():
     checked by test_analytic_cases)."""
     # measured over 24 seed blocks: one / four 1.82 .. 2.48 (median 2.02, log-SD 0.076);
     # long / four 0.94 .. 1.20 (median 1.01, log-SD 0.062)
-    budget.ratio("ray_bundle.rmse_ratio_chains", rmse_ratio_chains(0), 1.35, 3.0)
-    budget.ratio("ray_bundle.rmse_ratio_long_chain", rmse_ratio_long_chain(0), 0.7, 1.45)
+    budget.ratio("ray_bundle.rmse_ratio_chains", rmse_ratio_chains(0), 1.3, 3.4)
+    budget.ratio("ray_bundle.rmse_ratio_long_chain", rmse_ratio_long_chain(0), 0.6, 1.7)
     res = check("bekaert_sierpinski", rb(32, burn_in=16, stratify_chains=False), seed=7)
     assert res.passed, res
 
@@ -482,11 +482,13 @@ def test_average_diffuse_progress_counts_the_final_gathering():
     integ.progress_callback = stop_once
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
     assert integ.iterations_done == 6 + 4 and integ.interrupted and asked == list(range(1, 11))
-    assert np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.05
+    # a sanity bound (per-run SD of the mean ~2 % here; the values are tested elsewhere):
+    # weighting the finished passes as if all had run would give 0.5 or less
+    assert np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.2
     integ.progress_callback = lambda done, total: done < 6
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
     integ.progress_callback = None
-    assert integ.iterations_done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.05
+    assert integ.iterations_done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.2
     a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
     assert_same_image(a, b)
 
