@@ -102,7 +102,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     ``cylinder`` (``mi_plugins.meshtable``; other shapes are refused by name). After a render,
     ``integrator.triangle_radiance`` (numpy (K, 2, 3): patch, side (0: the one its normal
     points to), RGB; L0 + reflected), ``reflected_radiance``, ``triangle_areas``,
-    ``paths_used`` and ``delta_e_history`` hold the preprocessing result;
+    ``patch_shapes`` (shape id per patch), ``paths_used`` and ``delta_e_history`` hold the
+    preprocessing result;
     ``integrator.preprocess(scene, seed)`` runs it alone. Radiosity setting: the matrix
     reports cases with non-diffuse BSDFs as not applicable.
 
@@ -199,7 +200,14 @@ class QMCLightTraceIntegrator(CoreIntegrator):
 
     def preprocess(self, scene, seed=0):
         """Run the particle phase; returns (triangle_radiance (K, 2, 3), triangle_areas (K,))."""
-        table = self.table = MeshTable(scene, "qmc_lighttrace")
+        self._particle_phase(scene, seed)
+        return self.triangle_radiance, self.triangle_areas
+
+    def _particle_phase(self, scene, seed):
+        """The particle phase; keeps its numpy results and returns the patch table (never
+        kept on the integrator: it holds the scene, which holds the integrator, a cycle
+        that would keep every rendered scene alive)."""
+        table = MeshTable(scene, "qmc_lighttrace")
         areas = table.areas_np
         total, emitted = np.zeros((table.count, 2, 3)), np.zeros(3)
         adaptive, done, below, previous = self.epsilon is not None, 0, 0, None
@@ -227,7 +235,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         self.reflected_radiance = total / done / (np.pi * areas[:, None, None])
         self.triangle_radiance = self.reflected_radiance + self._triangle_emission(scene, table)
         self.triangle_areas = areas
-        return self.triangle_radiance, areas
+        self.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
+        return table
 
     def _triangle_emission(self, scene, table):
         """Emitted radiance of each patch side (K, 2, 3), at its centroid along the normal."""
@@ -241,7 +250,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
-        self.preprocess(scene, frame.seed)
+        table = self._particle_phase(scene, frame.seed)
         reflected = mi.Color3f(*(mi.Float(self.reflected_radiance[..., c].ravel()) for c in range(3)))
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
@@ -254,17 +263,17 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         # (a light sample alone has infinite variance where emitting surfaces meet, e.g. furnace edges)
         u = cam.sampler
         direct = direct_light(scene, si, bsdf, u.next_2d(), active, (u.next_1d(), u.next_2d()))
-        gather = self._gather(scene, cam.sampler, rng, si, bsdf, active, reflected)
+        gather = self._gather(scene, table, cam.sampler, rng, si, bsdf, active, reflected)
         if self.share_neighbors:
-            gather = self._share(gather, dr.select(active, patch_side(self.table, si), 0xFFFFFFFF), cam)
+            gather = self._share(gather, dr.select(active, patch_side(table, si), 0xFFFFFFFF), cam)
         frame.put_camera(cam, path.emission + path.throughput * (direct + gather))
 
-    def _gather(self, scene, sampler, rng, si, bsdf, active, reflected):
+    def _gather(self, scene, table, sampler, rng, si, bsdf, active, reflected):
         """SR cosine-distributed final-gather rays (on the side the eye ray arrived from)
         reading the reflected radiance L_k of the patch side they reach; a ray that reaches
         a purely specular surface follows it and takes the full radiance found behind it
         (its emission is not covered by the light sample)."""
-        table, ctx = self.table, mi.BSDFContext()
+        ctx = mi.BSDFContext()
         gather = dr.zeros(mi.Color3f, dr.width(si.p))
         for _ in range(self.gather_samples):  # SR gather rays (a small constant)
             d = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())

@@ -13,10 +13,14 @@ def _parser():
     p = argparse.ArgumentParser(prog="mi-plugins", description="Mitsuba 3 plugins with analytic verification.")
     sub = p.add_subparsers(dest="command", required=True)
 
-    v = sub.add_parser("verify", help="run the integrator x analytic-case verification matrix")
+    v = sub.add_parser("verify", help="run the integrator x analytic-case verification matrix, or the "
+                                      "conformance suite of ordinary scenes (--suite scenes)")
+    v.add_argument("--suite", choices=("analytic", "scenes"), default="analytic",
+                   help="analytic: integrator x analytic-case matrix (default); scenes: conformance suite "
+                        "(ordinary Mitsuba scenes, every package integrator against Mitsuba's path)")
     v.add_argument("--quick", action="store_true", help="small subset at low resolution (< 2 minutes)")
     v.add_argument("--integrators", nargs="+", metavar="NAME", help="integrators of the matrix to run")
-    v.add_argument("--scenes", nargs="+", metavar="CASE", help="analytic cases to run")
+    v.add_argument("--scenes", nargs="+", metavar="CASE", help="analytic cases (or conformance scenes) to run")
     v.add_argument("--report", metavar="DIR", help="write verify.json and verify.md into DIR")
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--list", action="store_true", help="list the integrators and cases and exit")
@@ -34,6 +38,13 @@ def _parser():
 
 
 def _verify(args):
+    if args.suite == "scenes":
+        from . import conformance
+        if args.list:
+            print("integrators: " + ", ".join(conformance.INTEGRATORS))
+            print("scenes:      " + ", ".join(conformance.scenes()))
+            return 0
+        return conformance.verify(args.integrators, args.scenes, quick=args.quick, report=args.report, seed=args.seed)
     from .analytic import matrix
     if args.list:
         print("integrators: " + ", ".join(matrix.INTEGRATORS))

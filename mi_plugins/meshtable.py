@@ -10,11 +10,17 @@ points of chosen patches, so that BSDFs, emitters and textures can be evaluated 
 Orientation is Mitsuba's: a patch's normal is the one ``si.n`` reports (the winding's,
 negated by ``flip_normals``). Build it at the top level of an integrator's ``render()``.
 """
+import warnings
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from mi_plugins import tessellation
+
+
+#: meshes with triangle edges above COARSE x the patch size get a warning
+COARSE = 4
 
 
 class NonMeshShapeError(ValueError):
@@ -66,6 +72,7 @@ class MeshTable:
         if h is None:
             h = float(dr.norm(scene.bbox().extents())) / tessellation.CELLS_PER_DIAGONAL
         parts = [self._mesh_part(m) if _is_mesh(m) else self._analytic_part(m, h) for m in self.shapes]
+        self._warn_coarse(parts, h, who)
         counts = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
         self.front_count = int(counts.sum())
@@ -115,6 +122,25 @@ class MeshTable:
         self.surface_normal = mi.Normal3f(*surface_normals.T)   # the surface's (Mitsuba's si.n)
         self.area = mi.Float(self.areas_np)
         self.shape_index = mi.UInt32(self.shape_index_np)
+
+    def _warn_coarse(self, parts, h, who):
+        """Radiance is constant per patch: warn about meshes whose triangles are much
+        larger than the analytic shapes' patches (their image is an average over them)."""
+        coarse = []
+        for index, (shape, part) in enumerate(zip(self.shapes, parts)):
+            tri = part["triangle"]
+            if part["kind"].size and part["kind"][0] == 0 and len(tri):
+                edge = float(np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)))
+                if edge > COARSE * h:
+                    name = shape.id() or "%s #%d" % (tessellation.shape_kind(shape), index)
+                    coarse.append("'%s' (%.3g)" % (name, edge))
+        if coarse:
+            warnings.warn("%s: mesh(es) %s have triangles longer than %.3g (%d x the patch size %.3g); radiance "
+                          "is constant per triangle, so where the light varies across them the image shows their "
+                          "average (on mi.cornell_box(), whose cubes have 2 triangles per face: -5 %% with "
+                          "ray_bundle, -2 %% with qmc_lighttrace). Subdivide such meshes for an accurate image."
+                          % (who, ", ".join(coarse[:4]) + (" ..." if len(coarse) > 4 else ""), COARSE * h, COARSE, h),
+                          RuntimeWarning, stacklevel=4)
 
     def side_patch(self, si, toward):
         """The patch of hits ``si`` on the side facing ``toward`` (world directions), and

@@ -71,8 +71,13 @@ def normal_tail(z):
     return math.erfc(abs(z) / math.sqrt(2.0))
 
 
-def _add(kind, alpha, **detail):
+def record(kind, alpha, **detail):
+    """Record a passing statistical check of ``kind`` with false-failure probability
+    ``alpha`` (for checks made by other modules, e.g. the conformance suite)."""
     _records.append(dict(test=_current["test"], kind=kind, alpha=float(alpha), **detail))
+
+
+_add = record
 
 
 # ------------------------------------------------------------------ assertions

@@ -350,3 +350,16 @@ def test_render_checks_the_output_directory_before_rendering(tmp_path, capsys, n
     (tmp_path / "d.exr").mkdir()
     status, out, err = render_in_process(capsys, scene, "-o", tmp_path / "d.exr")
     assert status == 2 and "is a directory" in error_line(err)
+
+
+def test_verify_suite_scenes_runs_the_conformance_suite(tmp_path, capsys):
+    """`verify --suite scenes` runs the conformance suite (here one cheap combination)
+    and writes its reports; --list names its integrators and scenes."""
+    from mi_plugins import cli
+    assert cli.main(["verify", "--suite", "scenes", "--list"]) == 0
+    assert "no_emitters" in capsys.readouterr().out
+    status = cli.main(["verify", "--suite", "scenes", "--scenes", "no_emitters", "--integrators", "stochastic_ray",
+                       "--quick", "--report", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert status == 0 and "no_emitters" in out and "PASS" in out
+    assert (tmp_path / "conformance.json").exists()

@@ -29,7 +29,7 @@ from mi_plugins import analytic, geometry
 from mi_plugins.analytic import harness, stats
 from mi_plugins.analytic.case import rgb_dict
 from mi_plugins.analytic.classic import ConstantCase
-from mi_plugins.meshtable import NonMeshShapeError  # noqa: F401  (the error type of the refusal)
+from mi_plugins.meshtable import MeshTable, NonMeshShapeError  # noqa: F401  (the error type of the refusal)
 
 import budget
 
@@ -543,7 +543,7 @@ def test_a_sheet_keeps_the_light_on_the_side_it_reaches(two_sided):
     scene = make(lighttrace())
     integrator = scene.integrator()
     integrator.preprocess(scene, seed=budget.seed(31))
-    rows = [m.id() for m in integrator.table.meshes].index("sheet") == integrator.table.shape_index_np
+    rows = integrator.patch_shapes == "sheet"
     assert np.all(integrator.reflected_radiance[rows, 0] > 0.05) and np.all(integrator.reflected_radiance[rows, 1] == 0)
 
 
@@ -628,9 +628,9 @@ def test_particles_carry_the_power_of_every_emitter_type(light):
     for j in range(RUNS):
         integrator.preprocess(scene, seed=budget.seed(40 + j))
         runs.append(integrator.reflected_radiance.copy())
-    rows = [m.id() for m in integrator.table.meshes].index("sheet") == integrator.table.shape_index_np
+    rows = integrator.patch_shapes == "sheet"
     runs = np.stack(runs)[:, rows]
-    irradiance, irradiance_se = irradiance_estimate(scene, integrator.table, rows, seed=40)
+    irradiance, irradiance_se = irradiance_estimate(scene, MeshTable(scene, "test"), rows, seed=40)
     albedo = np.array(SIDE_ALBEDO)[None, :, None]
     expected, expected_se = albedo * irradiance / np.pi, albedo * irradiance_se / np.pi
     se = np.hypot(runs.std(axis=0, ddof=1) / np.sqrt(RUNS), expected_se)
