@@ -154,7 +154,8 @@ def quick_cases():
     return tuple(classic.QUICK_CASES) + tuple(constant_radiance.QUICK_CASES)
 
 
-def _select(names, available, what):
+def select(names, available, what):
+    """``names`` checked against ``available`` (all of them when ``names`` is empty)."""
     if not names:
         return list(available)
     unknown = [n for n in names if n not in available]
@@ -166,8 +167,8 @@ def _select(names, available, what):
 def run(integrators=None, scenes=None, quick=False, seed=0, resolution=None, progress=None):
     """Run the matrix; returns a list of CheckResult. ``progress(result)`` is called after each."""
     table = all_cases()
-    case_names = _select(scenes, quick_cases() if quick and not scenes else table, "scene")
-    integ_names = _select(integrators, INTEGRATORS, "integrator")
+    case_names = select(scenes, quick_cases() if quick and not scenes else table, "scene")
+    integ_names = select(integrators, INTEGRATORS, "integrator")
     res = resolution or (16 if quick else 32)
     results = []
     for case_name in case_names:

@@ -4,19 +4,11 @@ import math
 import os
 import time
 
+from ..analytic.matrix import select
 from . import expectations, outcomes, runner
 from .scene_library import SCENES
 
 COLUMNS = ("scene", "integrator", "outcome", "mean", "path mean", "z", "power", "seconds")
-
-
-def _select(names, available, what):
-    if not names:
-        return list(available)
-    unknown = [n for n in names if n not in available]
-    if unknown:
-        raise ValueError("unknown %s %s; choose from: %s" % (what, ", ".join(unknown), ", ".join(available)))
-    return list(names)
 
 
 def _num(v, fmt):
@@ -95,8 +87,8 @@ def verify(integrators=None, scenes=None, quick=False, report=None, out=print, s
     Returns the exit status: 0 when every outcome is the expected one (PASS, or the
     expected REFUSED / N/A) and one seed fixes every integrator's image, 1 otherwise.
     """
-    scene_names = _select(scenes, SCENES, "scene")
-    integ_names = _select(integrators, expectations.INTEGRATORS, "integrator")
+    scene_names = select(scenes, SCENES, "scene")
+    integ_names = select(integrators, expectations.INTEGRATORS, "integrator")
     t0 = time.perf_counter()
     jobs = [(scene, name) for scene in scene_names for name in integ_names]
     # the expected refusals of variants outside the main table (e.g. the paper's ray_bundle)
