@@ -32,7 +32,7 @@ SLOPE_LIMIT = 0.1
 #: z bound of the suite's own mean-value assertions (two-sided 6.8e-6 each)
 Z = 4.5
 #: level of the chi-square tests of sampling routines
-CHI2_ALPHA = 1e-4
+CHI2_ALPHA = 3e-5
 #: largest accepted false-failure probability of one ratio assertion
 RATIO_ALPHA = 1e-4
 

@@ -34,7 +34,7 @@ from mi_plugins.analytic import stats
 from mi_plugins.analytic.harness import FLOAT_TOLERANCE, Z_BOUND
 
 #: family-wise level of the per-block tests of one comparison
-BLOCK_ALPHA = 1e-4
+BLOCK_ALPHA = 1e-5
 #: pixels per block side
 BLOCK = 4
 #: relative float32 accumulation error of a pixel averaged over n samples: up to about
