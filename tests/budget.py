@@ -239,8 +239,8 @@ def summary():
     if harness:
         worst = max(harness, key=lambda r: r["relative_tolerance"] if limit_for(r["test"])[1] is None else -1)
         lines.append("power: %d passing harness checks; largest relative tolerance outside the exceptions "
-                     "%.3g %% (%s); rule <= %.3g %%" % (len(harness), 100 * worst["relative_tolerance"],
-                                                        worst["test"], 100 * POWER_LIMIT))
+                     "%.3g %% (%s); rule: its lower confidence bound <= %.3g %%" % (
+                         len(harness), 100 * worst["relative_tolerance"], worst["test"], 100 * POWER_LIMIT))
         for prefix, (limit, reason) in EXCEPTIONS.items():
             got = [r["relative_tolerance"] for r in harness if r["test"].startswith(prefix)]
             if got:
