@@ -73,9 +73,10 @@ class ShapeFrame:
         return world, mi.Normal3f(dr.normalize(c[4] * n.x + c[5] * n.y + c[6] * n.z))
 
 
-def _world(shape, kind, u, v):
-    """numpy (n, 3) world points and normals of parameters ``u``, ``v`` on ``shape``."""
-    cols = ShapeFrame(shape).columns
+def _world(frame, kind, u, v):
+    """numpy (n, 3) world points and normals of parameters ``u``, ``v`` on the shape of
+    ``frame`` (a ShapeFrame)."""
+    cols = frame.columns
     uv = mi.Point2f(np.asarray(u, dtype=np.float32), np.asarray(v, dtype=np.float32))
     p, n = ShapeFrame.apply([mi.Float(float(x)) for x in cols], *local_point(mi.UInt32(kind), uv))
     return np.array(p, dtype=np.float64).T, np.array(n, dtype=np.float64).T
@@ -92,7 +93,7 @@ class ShapePatches:
     def __init__(self, shape, h):
         self.kind = kind = KINDS[shape_kind(shape)]
         self.frame = ShapeFrame(shape)
-        c, pu, pv, opposite = _world(shape, kind, [0, 1, 0, 0.5], [0, 0, 1, 0])[0]
+        c, pu, pv, opposite = _world(self.frame, kind, [0, 1, 0, 0.5], [0, 0, 1, 0])[0]
         if kind == 1:
             nu, nv = _count(np.linalg.norm(pu - c), h), _count(np.linalg.norm(pv - c), h)
         elif kind == 2:             # p(0, .) is the centre, p(1, 0) on the rim
@@ -117,7 +118,7 @@ class ShapePatches:
         self.areas = share * float(dr.slice(shape.surface_area()))
         mid_u = np.sqrt(0.5 * (u0 ** 2 + u1 ** 2)) if kind == 2 else 0.5 * (u0 + u1)
         mid_v = (np.arccos(0.5 * (np.cos(np.pi * v0) + np.cos(np.pi * v1))) / np.pi) if kind == 3 else 0.5 * (v0 + v1)
-        self.centres, self.normals = _world(shape, kind, mid_u, mid_v)
+        self.centres, self.normals = _world(self.frame, kind, mid_u, mid_v)
 
     @property
     def count(self):

@@ -74,8 +74,6 @@ class AnalyticCase:
     arguments, for reports), ``description`` (one line: what is exact).
     """
 
-    #: True when every surface is a triangle mesh (finite-element methods need this)
-    meshes_only = True
     #: stratified points per pixel side used by expected() where the radiance varies
     supersampling = 12
     #: a known, bounded absolute bias of the stated value (0: exact); the matrix passes it
@@ -92,7 +90,6 @@ class AnalyticCase:
         self.fov = float(fov)
         self.params = dict(params or {})
         self.description = description
-        self.meshes_only = all(s.get("type") in ("ply", "obj", "serialized") for s in surfaces.values())
 
     # ------------------------------------------------------------------ scene
     def sensor_dict(self, sampler=None):
