@@ -7,10 +7,17 @@ analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (see
 :mod:`mi_plugins.tessellation`). It maps a surface interaction to its patch
 (:meth:`MeshTable.patch`) and builds surface interactions at uniformly distributed
 points of chosen patches, so that BSDFs, emitters and textures can be evaluated there.
+
+Radiance is constant per patch in these methods, so the patch size ``h`` is the spatial
+resolution of the solution, whatever the modelling: a mesh triangle longer than the
+patch size is split into s x s similar sub-triangles (s the smallest level whose
+sub-triangles have edges <= sqrt(2) h, so that a right triangle's legs are <= h, as the
+analytic shapes' cells; at most :data:`MAX_SPLIT`). A hit finds its sub-triangle from its
+barycentric coordinates, computed from ``si.p`` in the parent triangle.
+
 Orientation is Mitsuba's: a patch's normal is the one ``si.n`` reports (the winding's,
 negated by ``flip_normals``). Build it at the top level of an integrator's ``render()``.
 """
-import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -19,8 +26,8 @@ import numpy as np
 from mi_plugins import tessellation
 
 
-#: meshes with triangle edges above COARSE x the patch size get a warning
-COARSE = 4
+#: subdivision level s (s x s sub-triangles per triangle) at the most
+MAX_SPLIT = 64
 
 
 class NonMeshShapeError(ValueError):
@@ -65,16 +72,18 @@ class MeshTable:
 
     NONE = 0xFFFFFFFF
 
-    def __init__(self, scene, who="mi_plugins", h=None, back_sides=False):
+    def __init__(self, scene, who="mi_plugins", h=None, back_sides=False, subdivide=True):
         require_meshes(scene, who)
         self.scene = scene
         self.meshes = self.shapes = list(scene.shapes())
         if h is None:
-            h = float(dr.norm(scene.bbox().extents())) / tessellation.CELLS_PER_DIAGONAL
-        parts = [self._mesh_part(m) if _is_mesh(m) else self._analytic_part(m, h) for m in self.shapes]
-        self._warn_coarse(parts, h, who)
+            h = default_patch_size(scene)
+        self.h = float(h)
+        parts = [self._mesh_part(m, h if subdivide else None) if _is_mesh(m) else self._analytic_part(m, h)
+                 for m in self.shapes]
         counts = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
+        self._parent_tables(parts)
         self.front_count = int(counts.sum())
         shape_index = np.repeat(np.arange(len(parts), dtype=np.uint32), counts)
         two_sided = np.array([back_sides and _reflects_on_both_sides(s) for s in self.shapes], dtype=bool)
@@ -94,6 +103,7 @@ class MeshTable:
             return mi.UInt32(table)
 
         self._offset_by_id = by_id(self.face_offsets)
+        self._parent_by_id = by_id(self._parent_by_id_values)
         self._kind_by_id = by_id([p["kind"][0] if len(p["kind"]) else 0 for p in parts])
         self._nu_by_id = by_id([p["nu"] for p in parts])
         self._nv_by_id = by_id([p["nv"] for p in parts])
@@ -123,24 +133,28 @@ class MeshTable:
         self.area = mi.Float(self.areas_np)
         self.shape_index = mi.UInt32(self.shape_index_np)
 
-    def _warn_coarse(self, parts, h, who):
-        """Radiance is constant per patch: warn about meshes whose triangles are much
-        larger than the analytic shapes' patches (their image is an average over them)."""
-        coarse = []
-        for index, (shape, part) in enumerate(zip(self.shapes, parts)):
-            tri = part["triangle"]
-            if part["kind"].size and part["kind"][0] == 0 and len(tri):
-                edge = float(np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)))
-                if edge > COARSE * h:
-                    name = shape.id() or "%s #%d" % (tessellation.shape_kind(shape), index)
-                    coarse.append("'%s' (%.3g)" % (name, edge))
-        if coarse:
-            warnings.warn("%s: mesh(es) %s have triangles longer than %.3g (%d x the patch size %.3g); radiance "
-                          "is constant per triangle, so where the light varies across them the image shows their "
-                          "average (on mi.cornell_box(), whose cubes have 2 triangles per face: -5 %% with "
-                          "ray_bundle, -2 %% with qmc_lighttrace). Subdivide such meshes for an accurate image."
-                          % (who, ", ".join(coarse[:4]) + (" ..." if len(coarse) > 4 else ""), COARSE * h, COARSE, h),
-                          RuntimeWarning, stacklevel=4)
+    def _parent_tables(self, parts):
+        """Per mesh triangle (all meshes, shape after shape): first patch, subdivision
+        level, corner and edges; ``_parent_by_id``: each shape's first triangle there."""
+        meshes = [(i, part) for i, part in enumerate(parts) if "level" in part]
+        sizes = [len(part["level"]) for _, part in meshes]
+        base = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        parent_base = np.zeros(len(parts), dtype=np.int64)
+        first, level, corners = [np.zeros(1, np.int64)], [np.ones(1, np.int64)], [np.zeros((1, 3, 3))]
+        for (index, part), b in zip(meshes, base):   # one entry per mesh (not per triangle)
+            parent_base[index] = b
+            first.append(self.face_offsets[index] + part["first"])
+            level.append(part["level"])
+            corners.append(part["parents"])
+        # a placeholder entry last: never empty (gathers need an array)
+        first, level, corners = (np.concatenate(a[1:] + a[:1]) for a in (first, level, corners))
+        self.parent_count = int(base[-1])
+        self._parent_by_id_values = parent_base
+        self._first = mi.UInt32(first)
+        self._level = mi.UInt32(level)
+        self._parent_p0 = mi.Point3f(*corners[:, 0].T)
+        self._parent_e1 = mi.Vector3f(*(corners[:, 1] - corners[:, 0]).T)
+        self._parent_e2 = mi.Vector3f(*(corners[:, 2] - corners[:, 0]).T)
 
     def side_patch(self, si, toward):
         """The patch of hits ``si`` on the side facing ``toward`` (world directions), and
@@ -151,7 +165,9 @@ class MeshTable:
         return dr.select(facing, front, back), facing | (back != self.NONE)
 
     @staticmethod
-    def _mesh_part(mesh):
+    def _mesh_part(mesh, h):
+        """Patches of a mesh: its triangles, each split into level^2 sub-triangles
+        (level 1 where ``h`` is None or the triangle is short)."""
         params = mi.traverse(mesh)
         verts = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
         faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
@@ -164,10 +180,20 @@ class MeshTable:
         if mesh.has_flipped_normals():      # Mitsuba's orientation: flip_normals negates the winding's
             cross = -cross
         area = 0.5 * np.linalg.norm(cross, axis=1)
-        n = len(faces)
-        return dict(kind=np.zeros(n, np.uint32), prim=np.arange(n, dtype=np.uint32), nu=0, nv=0, area=area,
-                    normal=cross / np.maximum(2 * area[:, None], 1e-30), triangle=p, uv=uv, bounds=np.zeros((n, 4)), frame=np.zeros((n, 21)),
-                    points=p.reshape(-1, 3))
+        normal = cross / np.maximum(2 * area[:, None], 1e-30)
+        level = split_levels(p, h)
+        count = level * level
+        parent = np.repeat(np.arange(len(faces)), count)
+        bary = np.concatenate([sub_triangles(s)[None].repeat(n, 0).reshape(-1, 3, 2)
+                               for s, n in _runs(level)]) if len(faces) else np.zeros((0, 3, 2))
+        weights = np.stack([1 - bary[..., 0] - bary[..., 1], bary[..., 0], bary[..., 1]], axis=-1)   # (n, 3, 3)
+        tri = np.einsum("nkc,ncd->nkd", weights, p[parent])
+        tuv = np.einsum("nkc,ncd->nkd", weights, uv[parent])
+        n = len(parent)
+        return dict(kind=np.zeros(n, np.uint32), prim=parent.astype(np.uint32), nu=0, nv=0,
+                    area=(area / count)[parent], normal=normal[parent], triangle=tri, uv=tuv, bounds=np.zeros((n, 4)),
+                    frame=np.zeros((n, 21)), points=p.reshape(-1, 3), parents=p, level=level,
+                    first=np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64))
 
     @staticmethod
     def _analytic_part(shape, h):
@@ -181,9 +207,22 @@ class MeshTable:
         """Global patch index of the surface interactions ``si`` (valid hits)."""
         shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
         kind = dr.gather(mi.UInt32, self._kind_by_id, shape_id)
+        mesh = kind == 0
         nu, nv = dr.gather(mi.UInt32, self._nu_by_id, shape_id), dr.gather(mi.UInt32, self._nv_by_id, shape_id)
-        local = dr.select(kind == 0, mi.UInt32(si.prim_index), tessellation.cell_of(kind, nu, nv, si.uv))
-        return dr.gather(mi.UInt32, self._offset_by_id, shape_id) + local
+        cell = dr.gather(mi.UInt32, self._offset_by_id, shape_id) + tessellation.cell_of(kind, nu, nv, si.uv)
+        parent = dr.gather(mi.UInt32, self._parent_by_id, shape_id) + mi.UInt32(si.prim_index)
+        level = dr.gather(mi.UInt32, self._level, parent, mesh)
+        split = mesh & (level > 1)
+        # barycentric coordinates of si.p in the parent triangle (least squares in its plane)
+        p0 = dr.gather(mi.Point3f, self._parent_p0, parent, split)
+        e1 = dr.gather(mi.Vector3f, self._parent_e1, parent, split)
+        e2 = dr.gather(mi.Vector3f, self._parent_e2, parent, split)
+        d = si.p - p0
+        a11, a12, a22, r1, r2 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2), dr.dot(d, e1), dr.dot(d, e2)
+        det = dr.maximum(a11 * a22 - a12 * a12, 1e-30)
+        sub = sub_triangle(level, (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det)
+        first = dr.gather(mi.UInt32, self._first, parent, mesh)
+        return dr.select(mesh, first + dr.select(split, sub, 0), cell)
 
     @property
     def total_area(self):
@@ -221,3 +260,58 @@ class MeshTable:
         if wi_world is not None:
             si.wi = si.to_local(wi_world)
         return si
+
+
+def patch_parameters(p):
+    """The patch parameters of a finite-element integrator, read with Params ``p``:
+    ``patch_size`` (None: :func:`default_patch_size`) and ``subdivide``."""
+    size = p.float("patch_size", None, lo=0, lo_open=True, note="optional: default scene diagonal / %d"
+                   % tessellation.CELLS_PER_DIAGONAL)
+    return size, p.bool("subdivide", True)
+
+
+def default_patch_size(scene):
+    """The scene's bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL."""
+    return float(dr.norm(scene.bbox().extents())) / tessellation.CELLS_PER_DIAGONAL
+
+
+def split_levels(p, h):
+    """Subdivision level per triangle (corners ``p``, (n, 3, 3)): the smallest s with
+    longest edge / s <= sqrt(2) h, at most MAX_SPLIT; 1 everywhere when ``h`` is None."""
+    if h is None or not len(p):
+        return np.ones(len(p), dtype=np.int64)
+    edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    return np.clip(np.ceil(edge / (np.sqrt(2.0) * h) * (1 - 1e-9)), 1, MAX_SPLIT).astype(np.int64)
+
+
+def sub_triangles(s):
+    """Barycentric corners (b1, b2) of the s x s sub-triangles, (s^2, 3, 2), in the order
+    of :func:`sub_triangle`: row j (b2 in [j/s, (j+1)/s]) starts at j (2s - j); in it the
+    upright triangle i is 2i, the inverted one 2i + 1 (both with the parent's winding)."""
+    corners = []
+    for j in range(s):          # a template of s^2 entries, built once per level
+        for i in range(s - j):
+            corners.append([(i, j), (i + 1, j), (i, j + 1)])
+            if i < s - j - 1:
+                corners.append([(i + 1, j + 1), (i, j + 1), (i + 1, j)])
+    return np.array(corners, dtype=np.float64) / s
+
+
+def sub_triangle(s, b1, b2):
+    """Index (see :func:`sub_triangles`) of the sub-triangle holding barycentric
+    coordinates (b1, b2) in a triangle split at level ``s`` (JIT arrays)."""
+    x, y = b1 * mi.Float(s), b2 * mi.Float(s)
+    j = dr.minimum(mi.UInt32(dr.maximum(y, 0.0)), s - 1)
+    i = dr.minimum(mi.UInt32(dr.maximum(x, 0.0)), s - 1 - j)
+    inverted = ((x - mi.Float(i)) + (y - mi.Float(j)) > 1.0) & (i + j < s - 1)
+    return j * (2 * s - j) + 2 * i + dr.select(inverted, 1, 0)
+
+
+def _runs(level):
+    """(value, run length) of consecutive equal entries of ``level``."""
+    if not len(level):
+        return []
+    cut = np.flatnonzero(np.diff(level)) + 1
+    starts = np.concatenate([[0], cut])
+    ends = np.concatenate([cut, [len(level)]])
+    return [(int(level[a]), int(b - a)) for a, b in zip(starts, ends)]

@@ -29,17 +29,7 @@ BLACK_LIMIT = 1e-4
 SEED = 1000
 
 #: combinations that FAIL on the current code: {(scene, integrator): measured defect}
-KNOWN_DEFECTS = {
-    ("mitsuba_cornell", "ray_bundle"):
-        "finite elements on mi.cornell_box(): image mean -4.9 % (0.06160 vs 0.06475, z -11.7; -5.0 +- 0.1 % at "
-        "4x the budget), 4x4 blocks up to -16 % (t 20; -19 % at 4x), beyond the patch bound (0.5 % / 3 %): its "
-        "cubes have 2 triangles per face and the rectangles' patches are coarse, so the patch-constant indirect "
-        "light is far off",
-    ("mitsuba_cornell", "qmc_lighttrace"):
-        "finite elements on mi.cornell_box(): image mean -2.3 % (0.06325 vs 0.06475, z -25; -2.1 +- 0.05 % at 4x "
-        "the budget), 4x4 blocks up to -11 % (t 29; +20 % at 4x), beyond the patch bound (0.5 % / 3 %): coarse "
-        "patches (cubes of 2 triangles per face)",
-}
+KNOWN_DEFECTS = {}
 
 SCENES = list(conformance.scenes())
 INTEGRATORS = list(conformance.INTEGRATORS)

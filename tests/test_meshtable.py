@@ -52,7 +52,7 @@ def test_patch_points_are_where_mitsubas_rays_find_them(name):
     assert cos.min() > 0.8
 
 
-@pytest.mark.parametrize("name", ["rectangle", "disk", "sphere", "cylinder"])
+@pytest.mark.parametrize("name", ["rectangle", "disk", "sphere", "cylinder", "cube_flipped", "obj_like_mesh"])
 def test_patch_points_are_uniform_in_area(name):
     assert _uniform_in_area(name)
 
@@ -89,3 +89,51 @@ def test_a_shape_without_patches_is_refused_by_name():
                           "inst": {"type": "instance", "shapegroup": {"type": "ref", "id": "group"}}})
     with pytest.raises(NonMeshShapeError, match=r"ray_bundle: shape 'inst' \(Instance\) is neither a triangle mesh"):
         MeshTable(scene, "ray_bundle")
+
+
+def _two_triangles(texcoords):
+    """A 2 x 1 rectangle of two triangles (a mesh made in Python, as a file loader would)."""
+    mesh = mi.Mesh("quad", 4, 2, has_vertex_texcoords=texcoords)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = [0, 0, 0, 2, 0, 0, 2, 1, 0, 0, 1, 0]
+    params["faces"] = [0, 1, 2, 0, 2, 3]
+    if texcoords:
+        params["vertex_texcoords"] = [0.1, 0.2, 0.9, 0.2, 0.9, 0.7, 0.1, 0.7]
+    params.update()
+    return mi.load_dict({"type": "scene", "quad": mesh})
+
+
+@pytest.mark.parametrize("texcoords", [False, True])
+def test_long_triangles_are_split_into_similar_sub_triangles(texcoords):
+    """Triangles longer than the patch size are split into s x s sub-triangles (edge /
+    s <= sqrt(2) h): areas equal, positions, normals and uv (texcoords interpolated)
+    agree with Mitsuba's hits, every hit maps back to its sub-triangle."""
+    scene = _two_triangles(texcoords)
+    table = MeshTable(scene, "test", h=0.3)
+    s = int(np.ceil(np.sqrt(5.0) / (np.sqrt(2.0) * 0.3)))          # diagonal sqrt(5): level 6
+    assert s == 6 and table.count == 2 * s * s
+    assert np.allclose(table.areas_np, 1.0 / s ** 2)
+    tri = dr.arange(mi.UInt32, table.count)
+    rng = budget.rng(5)
+    si = table.surface_interaction(tri, mi.Point2f(rng.random(table.count), rng.random(table.count)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    assert np.array_equal(np.array(table.patch(hit)), np.arange(table.count))
+    assert np.abs(np.array(hit.uv) - np.array(si.uv)).max() < 1e-5
+    assert np.abs(np.array(hit.p) - np.array(si.p)).max() < 1e-5
+    assert np.array_equal(np.array(si.prim_index), np.repeat([0, 1], s * s))
+    assert MeshTable(scene, "test", h=0.3, subdivide=False).count == 2
+    assert MeshTable(scene, "test", h=10.0).count == 2
+
+
+def test_sub_triangle_index_without_the_inverted_ones_would_fail(monkeypatch):
+    """The test of the test: a lookup that ignores the inverted sub-triangles maps hits
+    to the wrong patches."""
+    from mi_plugins import meshtable
+    real = meshtable.sub_triangle
+    monkeypatch.setattr(meshtable, "sub_triangle", lambda s, b1, b2: real(s, b1, b2) & ~mi.UInt32(1))
+    scene = _two_triangles(False)
+    table = MeshTable(scene, "test", h=0.3)
+    tri = dr.arange(mi.UInt32, table.count)
+    si = table.surface_interaction(tri, mi.Point2f(0.3, 0.3))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    assert not np.array_equal(np.array(table.patch(hit)), np.arange(table.count))

@@ -99,6 +99,8 @@ TABLE = {
         "gather_samples": INT(1),
         "share_neighbors": BOOL(),
         "mirror_depth": INT(0),
+        "patch_size": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
+        "subdivide": BOOL(),
         "hide_emitters": BOOL(),
     },
     "stochastic_ray": {
@@ -120,6 +122,8 @@ TABLE = {
         "stratify_chains": BOOL(),      # true with direction_sequence != 'independent': test_rules_between_parameters
         "average_diffuse": BOOL(),
         "gather_nee": BOOL(),
+        "patch_size": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
+        "subdivide": BOOL(),
         "hide_emitters": BOOL(),
     },
     "phong": {

@@ -32,14 +32,24 @@ from conftest import furnace_rmse, scalar_variant_refusal
 
 RES = 16
 #: the paper's algorithm: one chain, bundles of 48 x 48 lines
-PAPER = {"type": "ray_bundle", "iterations": 64, "resolution": 48}
+#: the analytic scenes are modelled as the papers' patches (their patch averages are exact):
+#: the tests keep them as modelled (subdivide=false); test_subdivided_patches_stay_exact and the
+#: conformance suite render with subdivision
+PAPER = {"type": "ray_bundle", "iterations": 64, "resolution": 48, "subdivide": False}
 
 
 def rb(chains=32, averaged=8, burn_in=8, resolution=16, **extra):
     """A ray_bundle dict with ``chains`` chains in lockstep, ``burn_in`` + ``averaged``
-    iterations."""
+    iterations, the scene's triangles as patches."""
     return dict({"type": "ray_bundle", "chains": chains, "iterations": burn_in + averaged, "burn_in": burn_in,
-                 "resolution": resolution}, **extra)
+                 "resolution": resolution, "subdivide": False}, **extra)
+
+
+def test_subdivided_patches_stay_exact():
+    """Long triangles split into sub-triangles (the default: the furnace box's 12 become
+    12 x 196, with 64 x 64 lines): the constant radiance stays exact."""
+    out = check("furnace_box", rb(32, resolution=64, first_shot=True, average_diffuse=True, subdivide=True), 16, 8)
+    assert out.passed, out
 
 
 def check(name, cfg, runs=16, res=RES, seed=2, **kw):
@@ -575,6 +585,9 @@ def test_xml():
     ({"estimate": "splat"}, "estimate='splat'"),
     ({"direction_sequence": "sobol"}, "direction_sequence='sobol'"),
     ({"direction_sequence": "halton", "stratify_chains": True}, "stratify_chains=true needs direction_sequence"),
+    ({"patch_size": 0.0}, "patch_size=0.0 is invalid; valid range: a finite number > 0"),
+    ({"patch_size": -1}, "patch_size=-1 is invalid"),
+    ({"subdivide": "false"}, "subdivide='false' is invalid; valid range: a boolean"),
 ])
 def test_bad_parameters(params, needle):
     with pytest.raises(Exception) as err:

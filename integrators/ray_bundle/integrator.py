@@ -10,7 +10,7 @@ from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, chain_directions, global_directions
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
 from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
-from mi_plugins.meshtable import MeshTable
+from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
 from mi_plugins.params import Params
 
 
@@ -111,6 +111,19 @@ class RayBundleIntegrator(CoreIntegrator):
          the direct light is constant per patch; where only their sum is (analytic
          scenes whose neighbouring patches emit differently, e.g. the Bekaert box: 0.6 %
          low) use false
+     * - patch_size
+       - float
+       - scene diagonal / 24, at least 2 x the line spacing
+       - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
+         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64),
+         whatever the modelling. Radiance is constant per patch: a smaller h lowers the
+         discretisation bias (``mi.cornell_box()``: -0.8 % at the default 0.144, -0.5 %
+         at 0.08) and raises the patch count (memory, noise per patch)
+     * - subdivide
+       - bool
+       - true
+       - split long mesh triangles (above); false keeps the triangles as modelled (the
+         papers' patches)
      * - hide_emitters
        - bool
        - false
@@ -123,9 +136,9 @@ class RayBundleIntegrator(CoreIntegrator):
     final gathering after the iterations (and also during them when the scene has
     non-diffuse patches); ``iteration_count(spp)`` and the progress bar count both.
     Camera rays are followed through purely specular surfaces to the first non-delta one.
-    **Scenes:** patches are the triangles of meshes and cells of the analytic
-    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along their own uv (size: the
-    bounding-box diagonal / 24); other shapes raise ``NonMeshShapeError`` naming the shape.
+    **Scenes:** patches are the triangles of meshes (long ones split, see ``patch_size``)
+    and cells of the analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along
+    their own uv; other shapes raise ``NonMeshShapeError`` naming the shape.
     Orientation is Mitsuba's (winding, ``flip_normals``): one-sided BSDFs send and receive
     on their front only, two-sided ones (``twosided``) have a patch per side. The
     environment emitter (``constant``, ``envmap``) lights the patches through the bundles
@@ -170,6 +183,7 @@ class RayBundleIntegrator(CoreIntegrator):
                              "give every chain its own sequence)")
         self.average_diffuse = p.bool("average_diffuse", False)
         self.gather_nee = p.bool("gather_nee", True)
+        self.patch_size, self.subdivide = patch_parameters(p)
 
     def iteration_count(self, spp):
         """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
@@ -177,6 +191,12 @@ class RayBundleIntegrator(CoreIntegrator):
         (one per averaged iteration)."""
         total = self.iterations * int(spp)
         return total + (total - self.burn_in if self.average_diffuse else 0)
+
+    def default_patch_size(self, scene):
+        """The scene's diagonal / 24, or twice the bundle's line spacing if that is larger
+        (a patch narrower than the lines' spacing is missed by most bundles: noise only)."""
+        spacing = 2.0 * scene.bbox().bounding_sphere().radius / self.resolution
+        return max(default_patch_size(scene), 2.0 * spacing)
 
     def _warn_delta(self, scene):
         names = [s.id() for s in scene.shapes()
@@ -203,7 +223,9 @@ class RayBundleIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
         self._check_emitters(scene)
-        layout = ChainLayout(MeshTable(scene, "ray_bundle", back_sides=True), self.chains, 2 if self.bidirectional else 1)
+        table = MeshTable(scene, "ray_bundle", h=self.patch_size or self.default_patch_size(scene), back_sides=True,
+                          subdivide=self.subdivide)
+        layout = ChainLayout(table, self.chains, 2 if self.bidirectional else 1)
         self._warn_delta(scene)
         transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
         total, burn_in = self.iterations * frame.spp, self.burn_in
