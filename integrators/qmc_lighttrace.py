@@ -10,6 +10,7 @@ import numpy as np
 from mi_plugins import qmc, seeds
 from mi_plugins.integrators.camera import specular_chain
 from mi_plugins.integrators.core import CoreIntegrator
+from mi_plugins.integrators.neighbours import share_with_neighbours
 from mi_plugins.meshtable import MeshTable, patch_parameters
 from mi_plugins.params import Params
 from mi_plugins.sampling import direct_light
@@ -279,7 +280,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         direct = direct_light(scene, si, bsdf, u.next_2d(), active, (u.next_1d(), u.next_2d()))
         gather = self._gather(scene, table, cam.sampler, rng, si, bsdf, active, reflected)
         if self.share_neighbors:
-            gather = self._share(gather, dr.select(active, patch_side(table, si), 0xFFFFFFFF), cam)
+            gather = share_with_neighbours(gather, dr.select(active, patch_side(table, si), 0xFFFFFFFF), cam)
         frame.put_camera(cam, path.emission + path.throughput * (direct + gather))
 
     def _gather(self, scene, table, sampler, rng, si, bsdf, active, reflected):
@@ -302,23 +303,6 @@ class QMCLightTraceIntegrator(CoreIntegrator):
             value = dr.select(ok & (chain.depth > 0), chain.emission + chain.throughput * stored, stored)
             gather += dr.select(ok, weight * value, 0.0)
         return gather / self.gather_samples
-
-    def _share(self, gather, tri, cam):
-        """Average each gather result with those of the 8 neighbouring pixels (same sample
-        number) whose eye ray hit the same side of the same triangle."""
-        width, height, spp = cam.grid_width, cam.grid_height, cam.per_pixel
-        lane = dr.arange(mi.UInt32, cam.count)
-        pixel, s = lane // spp, lane % spp
-        x, y = mi.Int32(pixel % width), mi.Int32(pixel // width)
-        total, count = dr.zeros(mi.Color3f, dr.width(lane)), dr.zeros(mi.Float, dr.width(lane))
-        for dx, dy in ((dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):   # the 3 x 3 neighbourhood
-            nx, ny = x + dx, y + dy
-            inside = (nx >= 0) & (nx < width) & (ny >= 0) & (ny < height)
-            other = mi.UInt32(dr.select(inside, ny * width + nx, 0)) * spp + s
-            same = inside & (dr.gather(mi.UInt32, tri, other, inside) == tri) & (tri != 0xFFFFFFFF)
-            total += dr.select(same, dr.gather(mi.Color3f, gather, other, same), 0.0)
-            count += dr.select(same, 1.0, 0.0)
-        return dr.select(count > 0, total / dr.maximum(count, 1.0), gather)
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, samples=%d]" % (

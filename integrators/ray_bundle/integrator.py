@@ -26,7 +26,8 @@ class RayBundleIntegrator(CoreIntegrator):
     direction w_m (and -w_m when ``bidirectional``). Each iteration transfers all patch
     radiances along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines
     across the scene's bounding sphere (jittered every iteration; every line walks ALL its
-    successive hits, and consecutive hits facing each other exchange radiance), picks a
+    successive hits, continuing 1e-6 x the scene's scale beyond each, so that a lamp 0.1 mm
+    under a ceiling is not skipped, and consecutive hits facing each other exchange radiance), picks a
     new random direction w_{m+1} and reflects:
     L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j A(i,j,w_m) / A_i L[j]
     (2 pi per direction when bidirectional). Emission and BSDF are evaluated at a fresh

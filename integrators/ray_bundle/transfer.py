@@ -16,6 +16,13 @@ from mi_plugins import seeds
 from mi_plugins.integrators.core import SPLAT_MODE
 from mi_plugins.sampling import direct_light
 
+#: a line continues past a hit from a point this far (relative to 1 + the largest
+#: coordinate) beyond the surface; Mitsuba's spawn_ray offsets ~90x more, which skips
+#: surfaces closer than that behind the hit (a lamp 0.1 mm under the ceiling in metres)
+LINE_EPSILON = 1e-6
+#: a hit of the primitive just left, closer than this (same scale), is a re-hit of it
+REHIT = 1e-4
+
 
 class ChainLayout:
     """Lanes of ``chains`` chains of ``table``'s patches, on ``sides`` sides."""
@@ -133,10 +140,14 @@ class Transport:
         L, scene, area = state.L, self.scene, cell * cell
         sky_ahead, sky_behind = self.sky(d)
 
-        def body(ray, active, prev, prev_fwd, first):
+        def body(ray, active, prev, prev_fwd, first, last_shape, last_prim):
             pi = scene.ray_intersect_preliminary(ray, active)
-            hit = active & pi.is_valid()
-            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV, hit)   # uv: patches of analytic shapes
+            found = active & pi.is_valid()
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV, found)   # uv: patches of analytic shapes
+            shape = dr.reinterpret_array(mi.UInt32, pi.shape)
+            scale = 1.0 + dr.max(dr.abs(si.p))
+            # the primitive just left, found again right behind the start: not a new surface
+            hit = found & ~((shape == last_shape) & (pi.prim_index == last_prim) & (pi.t < REHIT * scale))
             # the side facing the line's origin receives, the side facing ahead sends
             # (Mitsuba's orientation, flip_normals included; one-sided surfaces have one)
             receiver, receives = table.side_patch(si, -d)
@@ -152,12 +163,17 @@ class Transport:
                 if back:                         # a line leaving the scene: its last surface sees the sky
                     lit = active & ~pi.is_valid() & prev_fwd
                     dr.scatter_add(incoming, sky_ahead * area, prev + back * layout.slots, lit, mode=SPLAT_MODE)
-            return si.spawn_ray(d), hit, layout.slot_of(sender, chain), hit & sends, first & ~hit
+            beyond = si.p + si.n * dr.mulsign(LINE_EPSILON * scale, dr.dot(si.n, d))
+            return (mi.Ray3f(beyond, d), found, dr.select(hit, layout.slot_of(sender, chain), prev),
+                    dr.select(hit, hit & sends, prev_fwd), first & ~hit, shape, mi.UInt32(pi.prim_index))
 
         # loop state: the line's ray, whether it is still inside the scene, the slot of
-        # its previous hit, whether that hit faces +d (sends along it), no hit yet
-        dr.while_loop((ray, (u * u + v * v) <= self.radius * self.radius, dr.zeros(mi.UInt32, self.lines),
-                       mi.Bool(False), mi.Bool(True)), lambda ray, active, prev, prev_fwd, first: active, body)
+        # its previous hit, whether that hit faces +d (sends along it), no hit yet, and
+        # the shape and primitive of the last surface found (to tell re-hits of it)
+        start = (u * u + v * v) <= self.radius * self.radius
+        none = dr.full(mi.UInt32, 0xFFFFFFFF, self.lines)
+        dr.while_loop((ray, start, dr.zeros(mi.UInt32, self.lines), mi.Bool(False), mi.Bool(True), none, none),
+                      lambda ray, active, *rest: active, body)
         return incoming
 
     def sky(self, d):
