@@ -70,11 +70,15 @@ rss_mb = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   #
 def render(scene, integrator, spp, seed, limit):
     """Timed render -> (image, seconds without compile, compile seconds, stop): the package's
     iterative integrators wait for each step's kernels (dr.sync_thread) and stop once the
-    render has run `limit` seconds; stop = (steps done, steps planned, seconds) or None."""
-    stop, t0 = [], time.perf_counter()
+    render has run `limit` seconds; stop = (steps done, steps planned, seconds) or None.
+    Dr.Jit's kernel history (compile times) is read and cleared after every step: kept for
+    a whole render of thousands of iterations it alone grew to 3.5 GB."""
+    stop, comp, t0 = [], [0.0], time.perf_counter()
+    compiled = lambda: sum(k.get("backend_time", 0.0) for k in dr.kernel_history() if k.get("cache_hit", 1) == 0) / 1e3
     if hasattr(integrator, "progress_callback"):
         def guard(done, total):
             dr.sync_thread()
+            comp[0] += compiled()
             if time.perf_counter() - t0 > limit:
                 stop.append((done, total, time.perf_counter() - t0))
                 return False
@@ -82,8 +86,8 @@ def render(scene, integrator, spp, seed, limit):
     dr.kernel_history()   # clears it
     image = np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed), dtype=np.float64)
     wall = time.perf_counter() - t0
-    comp = sum(k.get("backend_time", 0.0) for k in dr.kernel_history() if k.get("cache_hit", 1) == 0) / 1e3
-    return image, max(wall - comp, 1e-6), comp, (stop[0] if stop else None)
+    comp[0] += compiled()
+    return image, max(wall - comp[0], 1e-6), comp[0], (stop[0] if stop else None)
 
 
 def rung_stats(a, b, ref, ref_var, keep):
@@ -182,11 +186,11 @@ def report(sname, results, args, say):
     """One scene's table: a row per budget; per integrator the ratios at t*, s/iter, peak MB."""
     tris, kept = (next((r[k] for r in results.values() if r.get(k)), 0) for k in ("triangles", "kept"))
     path = results.get("path", {}).get("rungs")
-    t_star = path[len(path) // 2]["seconds"] if path else None
+    t_star = args.t_star if args.t_star > 0 else path[len(path) // 2]["seconds"] if path else None
     ref_file = os.path.relpath(rsm.reference_path(sname, args.resolution, args.ref_spp), ROOT)
     say("\n%s: %d triangles, %d x %d px, reference path %d spp (%s); equal time t* = %s; 'excl.': the %.0f %% "
         "of pixels away from the visible light" % (sname, tris, args.resolution, args.resolution, args.ref_spp,
-        ref_file, "%.3g s (path's middle budget)" % t_star if t_star else "- (no path ladder)", 100 * kept))
+        ref_file, "%.3g s" % t_star if t_star else "- (no path ladder)", 100 * kept))
     say("%-16s %-22s %9s %9s %8s %8s %8s %8s %8s %7s %7s %10s %14s" % (
         "integrator", "settings", "budget", "seconds", "RMSE", "excl.", "bias", "noise", "mean rel",
         "/path", "excl.", "s/iter", "peak (base) MB"))
@@ -263,12 +267,16 @@ def main():
     p.add_argument("--max-mb", type=float, default=None,
                    help="stop a child above this resident memory (default half of MemAvailable at start)")
     p.add_argument("--scale", type=float, default=rsm.SCALE,
-                   help="scene units per millimetre of the Cornell data (default 0.01; 0.001: metres)")
-    p.add_argument("--plot", default=os.path.join(ROOT, "docs", "real_scenes.png"))
+                   help="scene units per millimetre of the Cornell data (default 0.001: metres)")
+    p.add_argument("--t-star", type=float, default=1.0,
+                   help="equal time of the ratio columns, seconds (default 1; 0: path's middle budget)")
+    p.add_argument("--plot", default=None, help="default docs/real_scenes.png (quick: benchmarks/.cache/)")
     p.add_argument("--write-docs", action="store_true", help="write the tables into docs/real_scenes.md")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
     rsm.SCALE = args.scale
+    args.plot = args.plot or os.path.join(ROOT, "benchmarks/.cache/real_scenes_quick.png" if args.quick
+                                          else "docs/real_scenes.png")
     for key, full, quick in (("resolution", 128, 32), ("ref_spp", 16384, 1024), ("cap", 120.0, 5.0),
                              ("max_rungs", 12, 4)):
         setattr(args, key, getattr(args, key) or (quick if args.quick else full))
