@@ -6,6 +6,7 @@ directions per iteration (+d, and -d when the bundles are used both ways) every
 per-patch array holds ``sides`` blocks of slots: side 0 is the radiance leaving along
 +d (or arriving along +d, for the incoming power), side 1 along -d.
 """
+import warnings
 from dataclasses import dataclass
 
 import drjit as dr
@@ -24,6 +25,21 @@ LINE_EPSILON = 1e-6
 REHIT = 1e-4
 
 
+#: peak memory of an iteration per lane (chain x patch side), measured with first_shot and
+#: average_diffuse: 9.1 M lanes (70 k triangles, 64 chains) 0.79 GB, 129 M lanes (1 M
+#: triangles) 10.3 GB above the scene's own
+BYTES_PER_LANE = 85
+
+
+def available_memory():
+    """Bytes of memory available (Linux' MemAvailable), or None where it is not known."""
+    try:
+        with open("/proc/meminfo") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError):
+        return None
+
+
 class ChainLayout:
     """Lanes of ``chains`` chains of ``table``'s patches, on ``sides`` sides."""
 
@@ -31,6 +47,21 @@ class ChainLayout:
         self.table, self.chains, self.sides, self.count = table, int(chains), int(sides), table.count
         self.slots = self.chains * self.count
         self.lanes = self.sides * self.slots
+
+    def check_memory(self, available):
+        """Refuse a layout whose iterations would need more than ``available`` bytes
+        (None: not known, no check), naming the chains that would fit; warn above a quarter."""
+        need = self.lanes * BYTES_PER_LANE
+        if available is None or need <= available / 4:
+            return
+        fit = int(available // (BYTES_PER_LANE * self.sides * self.count))
+        text = ("ray_bundle: chains=%d x %d patch sides (%d patches) = %.3g M lanes need about %.1f GB per "
+                "iteration, %s the %.1f GB available" % (self.chains, self.sides * self.count, self.count,
+                                                         self.lanes / 1e6, need / 1e9, "%s", available / 1e9))
+        if need > available:
+            raise MemoryError(text % "more than" + "; valid range here: chains <= %d (or a larger patch_size, "
+                              "subdivide=false)" % fit)
+        warnings.warn(text % "over a quarter of", RuntimeWarning, stacklevel=4)
 
     def lane_parts(self):
         """(side, triangle, chain) of every lane."""
