@@ -41,11 +41,10 @@ DOCS = os.path.join(ROOT, "docs", "real_scenes.md")
 MARK = "@@worker-result "
 INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_tuned", "qmc_lighttrace")
 TUNED = dict(chains=64, resolution=32, first_shot=True, average_diffuse=True)
-PATHS = 100_000   # qmc_lighttrace particle paths per unit of budget (its default `samples`)
 SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray": "defaults: 32 it, burn 8",
             "ray_bundle": "defaults", "ray_bundle_tuned": "64 ch, res 32, fs, avg",
-            "qmc_lighttrace": "defaults, 1e5 paths/b"}
-UNIT = {"ray_bundle": "it", "ray_bundle_tuned": "it", "qmc_lighttrace": "b"}   # others: spp
+            "qmc_lighttrace": "defaults (1e5 paths)"}
+UNIT = {"ray_bundle": "it", "ray_bundle_tuned": "it"}   # others: spp
 STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_tuned")   # iterations, a progress callback
 
 
@@ -53,7 +52,8 @@ STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_tuned")   # iterations, a
 def config(name, budget):
     """(integrator dict, spp) of a budget: spp for path, ptracer and stochastic_ray; global
     iterations for ray_bundle (iterations = budget below 64, else spp = budget / 64 of the
-    default 64); b for qmc_lighttrace (spp = b camera samples, samples = b x 100 000 paths)."""
+    default 64); spp for qmc_lighttrace with its default particle paths (100 000: a fixed
+    cost, and a fixed error of the patch radiances that more camera samples do not lower)."""
     if name in ("path", "ptracer"):
         return dict(type=name, max_depth=-1), budget
     if name == "stochastic_ray":
@@ -61,7 +61,7 @@ def config(name, budget):
     if name.startswith("ray_bundle"):
         d = dict(type="ray_bundle", **(TUNED if name == "ray_bundle_tuned" else {}))
         return (dict(d, iterations=budget), 1) if budget < 64 else (d, budget // 64)
-    return dict(type=name, samples=PATHS * budget), budget
+    return dict(type=name), budget
 
 
 rss_mb = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # own peak (Linux: KiB)

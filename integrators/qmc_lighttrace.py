@@ -60,8 +60,10 @@ class QMCLightTraceIntegrator(CoreIntegrator):
          seed selects it); ``false``: the plain sequence
      * - max_depth
        - int
-       - 6
-       - M >= 0 (2M + 4 dimensions must fit the sequence: Halton/Faure M <= 126)
+       - 29
+       - M >= 0 (2M + 4 dimensions must fit the sequence: Halton/Faure M <= 126); paths
+         of up to M + 3 segments. 29 as in Keller's tables: on the Cornell box (albedo up
+         to 0.89) M = 6 left the image 0.8 % dark, 29 0.15 %
      * - samples
        - int
        - 100000
@@ -84,8 +86,10 @@ class QMCLightTraceIntegrator(CoreIntegrator):
        - >= 1, cap for the adaptive termination
      * - gather_samples
        - int
-       - 16
-       - SR >= 1 final-gather rays per eye ray
+       - 4
+       - SR >= 1 final-gather rays per eye ray. 4 measured best at equal time on the
+         Cornell box (RMSE x sqrt(seconds) away from the light 0.0019, with 16: 0.0026,
+         with 1: 0.0022; `path` 0.0032)
      * - share_neighbors
        - bool
        - false
@@ -138,13 +142,13 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         p = Params(props, "qmc_lighttrace")
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
-        self.max_depth = p.int("max_depth", 6, lo=0)
+        self.max_depth = p.int("max_depth", 29, lo=0)
         self.samples = p.int("samples", 100000, lo=1)
         self.epsilon = p.float("epsilon", None, lo=0, lo_open=True, note="optional: adaptive termination")
         self.batch = p.int("batch", 1000, lo=1)
         self.patience = p.int("patience", 2, lo=1)
         self.max_samples = p.int("max_samples", 10000000, lo=1)
-        self.gather_samples = p.int("gather_samples", 16, lo=1)
+        self.gather_samples = p.int("gather_samples", 4, lo=1)
         self.share_neighbors = p.bool("share_neighbors", False)
         self.mirror_depth = p.int("mirror_depth", 8, lo=0)
         self.patch_size, self.subdivide = patch_parameters(p)

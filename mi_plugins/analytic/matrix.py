@@ -113,7 +113,8 @@ INTEGRATORS = {
     # Keller's method with his M = 29: the image holds paths of up to M + 3 = 32 segments, so
     # against the untruncated value it misses < 0.7^32 / 0.3 * Le_max < 1e-4 for the matrix
     # albedos (<= 0.7): passed as the explicit bias QMC_TRUNCATION.
-    "qmc_lighttrace": IntegratorSpec({"type": "qmc_lighttrace", "max_depth": 29, "samples": 20000},
+    "qmc_lighttrace": IntegratorSpec({"type": "qmc_lighttrace", "max_depth": 29, "samples": 20000,
+                                      "gather_samples": 16},
                                      spp=32, quick_spp=64, quick_params={"gather_samples": 4},
                                      exact_depth=-1, not_applicable=dict(_NON_DIFFUSE, **_MIRRORS),
                                      known_failures=dict(_SPHERE_NEE_ALL),
