@@ -46,6 +46,7 @@ SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray":
             "qmc_lighttrace": "defaults (1e5 paths)"}
 UNIT = {"ray_bundle": "it", "ray_bundle_tuned": "it"}   # others: spp
 STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_tuned")   # iterations, a progress callback
+SCALING = ("ray_bundle", "ray_bundle_tuned", "qmc_lighttrace")   # the columns of the scaling table
 
 
 # ---------------------------------------------------------------------------- one child process
@@ -311,11 +312,11 @@ def main():
         all_results[sname] = results
         report(sname, results, args, say)
     say("\nScaling with triangle count: ray_bundle s per global iteration, qmc_lighttrace s per pass (budget 1)")
-    say("%-12s %10s %9s" % ("scene", "triangles", "patches") + "".join(" %18s" % n for n in names if n in UNIT))
+    say("%-12s %10s %9s" % ("scene", "triangles", "patches") + "".join(" %18s" % n for n in names if n in SCALING))
     for sname, results in all_results.items():
         get = lambda key: next((r[key] for r in results.values() if r.get(key)), 0)
         say("%-12s %10d %9s" % (sname, get("triangles"), get("patches") or "-")
-            + "".join(" %18s" % per_iteration(n, results[n]) for n in names if n in UNIT))
+            + "".join(" %18s" % per_iteration(n, results[n]) for n in names if n in SCALING))
     plot(all_results, args)
     if args.write_docs:
         write_docs(lines, "python3 benchmarks/real_scenes.py " + " ".join(sys.argv[1:]))
