@@ -80,30 +80,15 @@ def quads_mesh(quads, facing):
     return geo._unshared_triangles(tris)
 
 
-def icosahedron():
-    t = (1.0 + 5 ** 0.5) / 2
-    v = np.array([(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t),
-                  (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)], dtype=np.float64)
-    f = np.array([(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-                  (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
-                  (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)])
-    return v / np.linalg.norm(v, axis=1, keepdims=True), f     # counter-clockwise seen from outside
-
-
 def blob(k):
     """The displaced geodesic sphere (20 k^2 triangles, outward), standing on the floor.
-    Each icosahedron face (A, B, C) is split into the lattice points (k-i-j, i, j) / k:
-    k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
+    Each icosahedron face (A, B, C) is split into the lattice points (k-i-j, i, j) / k
+    (`mi_plugins.geometry.triangle_lattice`): k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
     same two non-zero weights on both faces, hence bit-identical positions: no cracks."""
-    corners, faces = icosahedron()
-    i, j = (a.ravel() for a in np.meshgrid(np.arange(k), np.arange(k), indexing="ij"))
-    up = i + j <= k - 1
-    down = i + j <= k - 2
-    lattice = np.concatenate([  # (T, 3 vertices, 2) lattice coordinates (i, j)
-        np.stack([np.stack([i, j], 1), np.stack([i + 1, j], 1), np.stack([i, j + 1], 1)], 1)[up],
-        np.stack([np.stack([i + 1, j], 1), np.stack([i + 1, j + 1], 1), np.stack([i, j + 1], 1)], 1)[down]])
+    ico = geo.icosphere(0, inward=False)                        # the icosahedron, outward
+    lattice = geo.triangle_lattice(k)                           # (T, 3 vertices, 2) lattice coordinates (i, j)
     w = np.concatenate([(k - lattice.sum(-1))[..., None], lattice], axis=-1) / k       # (T, 3, 3)
-    p = np.einsum("tvc,fcx->ftvx", w, corners[faces]).reshape(-1, 3, 3)             # (20 T, 3, 3)
+    p = np.einsum("tvc,fcx->ftvx", w, ico.vertices[ico.faces]).reshape(-1, 3, 3)    # (20 T, 3, 3)
     d = p / np.linalg.norm(p, axis=-1, keepdims=True)
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
     r = (1.0 + 0.12 * np.sin(4 * x + 1) * np.sin(5 * y + 2) * np.sin(3 * z + 0.5)

@@ -23,7 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import tessellation
+from mi_plugins import geometry, tessellation
 
 
 #: subdivision level s (s x s sub-triangles per triangle) at the most
@@ -78,12 +78,11 @@ class MeshTable:
         self.meshes = self.shapes = list(scene.shapes())
         if h is None:
             h = default_patch_size(scene)
-        self.h = float(h)
         parts = [self._mesh_part(m, h if subdivide else None) if _is_mesh(m) else self._analytic_part(m, h)
                  for m in self.shapes]
         counts = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
-        self._parent_tables(parts)
+        parent_base = self._parent_tables(parts)
         self.front_count = int(counts.sum())
         shape_index = np.repeat(np.arange(len(parts), dtype=np.uint32), counts)
         two_sided = np.array([back_sides and _reflects_on_both_sides(s) for s in self.shapes], dtype=bool)
@@ -103,7 +102,7 @@ class MeshTable:
             return mi.UInt32(table)
 
         self._offset_by_id = by_id(self.face_offsets)
-        self._parent_by_id = by_id(self._parent_by_id_values)
+        self._parent_by_id = by_id(parent_base)
         self._kind_by_id = by_id([p["kind"][0] if len(p["kind"]) else 0 for p in parts])
         self._nu_by_id = by_id([p["nu"] for p in parts])
         self._nv_by_id = by_id([p["nv"] for p in parts])
@@ -135,7 +134,7 @@ class MeshTable:
 
     def _parent_tables(self, parts):
         """Per mesh triangle (all meshes, shape after shape): first patch, subdivision
-        level, corner and edges; ``_parent_by_id``: each shape's first triangle there."""
+        level, corner and edges; returns each shape's first triangle there."""
         meshes = [(i, part) for i, part in enumerate(parts) if "level" in part]
         sizes = [len(part["level"]) for _, part in meshes]
         base = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
@@ -148,13 +147,12 @@ class MeshTable:
             corners.append(part["parents"])
         # a placeholder entry last: never empty (gathers need an array)
         first, level, corners = (np.concatenate(a[1:] + a[:1]) for a in (first, level, corners))
-        self.parent_count = int(base[-1])
-        self._parent_by_id_values = parent_base
         self._first = mi.UInt32(first)
         self._level = mi.UInt32(level)
         self._parent_p0 = mi.Point3f(*corners[:, 0].T)
         self._parent_e1 = mi.Vector3f(*(corners[:, 1] - corners[:, 0]).T)
         self._parent_e2 = mi.Vector3f(*(corners[:, 2] - corners[:, 0]).T)
+        return parent_base
 
     def side_patch(self, si, toward):
         """The patch of hits ``si`` on the side facing ``toward`` (world directions), and
@@ -222,7 +220,7 @@ class MeshTable:
         det = dr.maximum(a11 * a22 - a12 * a12, 1e-30)
         sub = sub_triangle(level, (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det)
         first = dr.gather(mi.UInt32, self._first, parent, mesh)
-        return dr.select(mesh, first + dr.select(split, sub, 0), cell)
+        return dr.select(mesh, first + sub, cell)       # level 1: sub-triangle 0, whatever (b1, b2)
 
     @property
     def total_area(self):
@@ -286,15 +284,8 @@ def split_levels(p, h):
 
 def sub_triangles(s):
     """Barycentric corners (b1, b2) of the s x s sub-triangles, (s^2, 3, 2), in the order
-    of :func:`sub_triangle`: row j (b2 in [j/s, (j+1)/s]) starts at j (2s - j); in it the
-    upright triangle i is 2i, the inverted one 2i + 1 (both with the parent's winding)."""
-    corners = []
-    for j in range(s):          # a template of s^2 entries, built once per level
-        for i in range(s - j):
-            corners.append([(i, j), (i + 1, j), (i, j + 1)])
-            if i < s - j - 1:
-                corners.append([(i + 1, j + 1), (i, j + 1), (i + 1, j)])
-    return np.array(corners, dtype=np.float64) / s
+    of :func:`sub_triangle` (:func:`mi_plugins.geometry.triangle_lattice`)."""
+    return geometry.triangle_lattice(s) / float(s)
 
 
 def sub_triangle(s, b1, b2):

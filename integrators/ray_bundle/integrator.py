@@ -195,9 +195,12 @@ class RayBundleIntegrator(CoreIntegrator):
         total = self.iterations * int(spp)
         return total + (total - self.burn_in if self.average_diffuse else 0)
 
-    def default_patch_size(self, scene):
-        """The scene's diagonal / 24, or twice the bundle's line spacing if that is larger
-        (a patch narrower than the lines' spacing is missed by most bundles: noise only)."""
+    def patch_size_for(self, scene):
+        """``patch_size``, or by default the scene's diagonal / 24, or twice the bundle's
+        line spacing if that is larger (a patch narrower than the lines' spacing is missed
+        by most bundles: noise only)."""
+        if self.patch_size is not None:
+            return self.patch_size
         spacing = 2.0 * scene.bbox().bounding_sphere().radius / self.resolution
         return max(default_patch_size(scene), 2.0 * spacing)
 
@@ -226,8 +229,7 @@ class RayBundleIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
         self._check_emitters(scene)
-        table = MeshTable(scene, "ray_bundle", h=self.patch_size or self.default_patch_size(scene), back_sides=True,
-                          subdivide=self.subdivide)
+        table = MeshTable(scene, "ray_bundle", h=self.patch_size_for(scene), back_sides=True, subdivide=self.subdivide)
         layout = ChainLayout(table, self.chains, 2 if self.bidirectional else 1)
         layout.check_memory(available_memory())
         self._warn_delta(scene)

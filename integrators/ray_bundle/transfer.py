@@ -55,13 +55,16 @@ class ChainLayout:
         if available is None or need <= available / 4:
             return
         fit = int(available // (BYTES_PER_LANE * self.sides * self.count))
+        refuse = need > available
         text = ("ray_bundle: chains=%d x %d patch sides (%d patches) = %.3g M lanes need about %.1f GB per "
                 "iteration, %s the %.1f GB available" % (self.chains, self.sides * self.count, self.count,
-                                                         self.lanes / 1e6, need / 1e9, "%s", available / 1e9))
-        if need > available:
-            raise MemoryError(text % "more than" + "; valid range here: chains <= %d (or a larger patch_size, "
-                              "subdivide=false)" % fit)
-        warnings.warn(text % "over a quarter of", RuntimeWarning, stacklevel=4)
+                                                         self.lanes / 1e6, need / 1e9,
+                                                         "more than" if refuse else "over a quarter of",
+                                                         available / 1e9))
+        if refuse:
+            raise MemoryError(text + "; valid range here: chains <= %d (or a larger patch_size, subdivide=false)"
+                              % fit)
+        warnings.warn(text, RuntimeWarning, stacklevel=4)
 
     def lane_parts(self):
         """(side, triangle, chain) of every lane."""
