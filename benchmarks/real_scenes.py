@@ -2,7 +2,7 @@
 with a 70 000 or a 1 000 000 triangle mesh standing in it (real_scene_meshes.py).
 
 Every integrator (`path`, `ptracer`, `stochastic_ray`, `ray_bundle` with its defaults
-and tuned, `qmc_lighttrace`) renders every scene at doubling budgets, each twice, in a
+and with the paper's settings, `qmc_lighttrace`) renders every scene at doubling budgets, each twice, in a
 fresh child process after a tiny warm-up render; against a cached long `path` reference:
 seconds, RMSE (also away from the visible light), bias, noise, mean relative to the
 reference, RMSE ratio to `path` at equal time, seconds per `ray_bundle` iteration, peak
@@ -29,6 +29,7 @@ mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
 import mi_plugins  # noqa: E402,F401  (registers the plugins)
+from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:   # the helper modules next to this file
@@ -39,29 +40,28 @@ from analysis import interp_loglog  # noqa: E402
 ROOT = os.path.dirname(HERE)
 DOCS = os.path.join(ROOT, "docs", "real_scenes.md")
 MARK = "@@worker-result "
-INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_tuned", "qmc_lighttrace")
-TUNED = dict(chains=64, resolution=32, first_shot=True, average_diffuse=True)
+INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_paper", "qmc_lighttrace")
+PAPER = {k: v for k, v in PAPER_SETTINGS.items() if k != "iterations"}   # the budget sets the iterations
 SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray": "defaults: 32 it, burn 8",
-            "ray_bundle": "defaults", "ray_bundle_tuned": "64 ch, res 32, fs, avg",
+            "ray_bundle": "defaults: 64 ch, res 32", "ray_bundle_paper": "paper: 1 ch, res 128",
             "qmc_lighttrace": "defaults (1e5 paths)"}
-UNIT = {"ray_bundle": "it", "ray_bundle_tuned": "it"}   # others: spp
-STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_tuned")   # iterations, a progress callback
-SCALING = ("ray_bundle", "ray_bundle_tuned", "qmc_lighttrace")   # the columns of the scaling table
+UNIT = {"ray_bundle": "it", "ray_bundle_paper": "it"}   # others: spp
+STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_paper")   # iterations, a progress callback
+SCALING = ("ray_bundle", "ray_bundle_paper", "qmc_lighttrace")   # the columns of the scaling table
 
 
 # ---------------------------------------------------------------------------- one child process
 def config(name, budget):
     """(integrator dict, spp) of a budget: spp for path, ptracer and stochastic_ray; global
-    iterations for ray_bundle (iterations = budget below 64, else spp = budget / 64 of the
-    default 64); spp for qmc_lighttrace with its default particle paths (100 000: a fixed
+    iterations for ray_bundle (iterations = budget, spp 1; burn-in 8); spp for qmc_lighttrace with its default particle paths (100 000: a fixed
     cost, and a fixed error of the patch radiances that more camera samples do not lower)."""
     if name in ("path", "ptracer"):
         return dict(type=name, max_depth=-1), budget
     if name == "stochastic_ray":
         return dict(type=name), budget
     if name.startswith("ray_bundle"):
-        d = dict(type="ray_bundle", **(TUNED if name == "ray_bundle_tuned" else {}))
-        return (dict(d, iterations=budget), 1) if budget < 64 else (d, budget // 64)
+        d = dict(type="ray_bundle", **(PAPER if name == "ray_bundle_paper" else {}))
+        return dict(d, iterations=budget), 1
     return dict(type=name), budget
 
 

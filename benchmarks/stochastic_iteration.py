@@ -83,9 +83,11 @@ def methods(args):
     doubling = [2 ** k for k in range(20)]
     sr = dict(type="stochastic_ray", iterations=args.sr_iterations, burn_in=args.burn_in, max_depth=-1)
     rb_ladder = [args.burn_in + 8 * 2 ** k for k in range(16)]
-    rb = lambda n, **extra: (dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
-                                  resolution=args.bundle_resolution, chains=args.bundle_chains,
-                                  estimate=args.bundle_estimate, **extra), 1)
+    # the paper's algorithm unless `extra` says otherwise (the defaults are the tuned settings)
+    rb = lambda n, **extra: (dict(dict(type="ray_bundle", iterations=n, burn_in=args.burn_in,
+                                       resolution=args.bundle_resolution, chains=args.bundle_chains,
+                                       estimate=args.bundle_estimate, first_shot=False, average_diffuse=False),
+                                  **extra), 1)
     return {
         "path": Method("path", doubling, lambda b: (dict(type="path", max_depth=-1), b), "spp"),
         "ptracer": Method("ptracer", doubling, lambda b: (dict(type="ptracer", max_depth=-1), b), "spp"),

@@ -22,6 +22,7 @@ STREAMS = {
     "directions": 7,    # ray_bundle's global directions
     "gather": 8,        # ray_bundle's final gathering
     "particles": 9,     # qmc_lighttrace's sequence randomisation
+    "direct": 10,       # ray_bundle's shared direct light of diffuse patches
 }
 
 

@@ -140,7 +140,8 @@ def test_ctrl_c_writes_the_finished_passes(tmp_path):
 
 
 @pytest.mark.parametrize("integrator", [{"type": "stochastic_ray", "iterations": 40, "burn_in": 8},
-                                        {"type": "ray_bundle", "iterations": 40, "burn_in": 8, "resolution": 32}],
+                                        {"type": "ray_bundle", "iterations": 40, "burn_in": 8, "resolution": 32,
+                                         "chains": 1, "first_shot": False, "average_diffuse": False}],
                          ids=["stochastic_ray", "ray_bundle"])
 def test_interrupted_iterative_render_keeps_finished_iterations(integrator):
     """Ctrl-C (here: raised by the progress hook) inside the second pass of an iterative
@@ -171,7 +172,7 @@ def test_interrupted_iterative_render_keeps_finished_iterations(integrator):
 
 @pytest.mark.parametrize("integrator", [{"type": "stochastic_ray", "iterations": 40, "burn_in": 8},
                                         {"type": "ray_bundle", "iterations": 40, "burn_in": 8, "resolution": 16,
-                                         "chains": 4}],
+                                         "chains": 4, "first_shot": False, "average_diffuse": False}],
                          ids=["stochastic_ray", "ray_bundle"])
 def test_interrupted_pass_weighting_matches_separate_renders(integrator):
     """The image of a render interrupted in its second pass equals, to 1e-6, the

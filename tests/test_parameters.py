@@ -111,7 +111,7 @@ TABLE = {
     },
     "ray_bundle": {
         "iterations": INT(1, good=[1, 64]),
-        "burn_in": INT(0, good=[0, 63], extra_bad=[64]),          # 64: iterations - 1 = 63 (default 64)
+        "burn_in": INT(0, good=[0, 15], extra_bad=[16]),          # 16: iterations - 1 = 15 (default 16)
         "resolution": INT(1),
         "chains": INT(1),
         "bidirectional": BOOL(),

@@ -22,10 +22,12 @@ from unittest import mock
 import numpy as np
 import pytest
 
+import drjit as dr
 import mitsuba as mi
 from mi_plugins import analytic
 from mi_plugins.analytic import harness
 from mi_plugins.meshtable import NonMeshShapeError
+from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
 
 import budget
 from conftest import furnace_rmse, scalar_variant_refusal
@@ -35,14 +37,16 @@ RES = 16
 #: the analytic scenes are modelled as the papers' patches (their patch averages are exact):
 #: the tests keep them as modelled (subdivide=false); test_subdivided_patches_stay_exact and the
 #: conformance suite render with subdivision
-PAPER = {"type": "ray_bundle", "iterations": 64, "resolution": 48, "subdivide": False}
+#: the paper's algorithm (the plugin's PAPER_SETTINGS) at the tests' sizes, the scenes' own patches
+PAPER = dict(PAPER_SETTINGS, type="ray_bundle", resolution=48, subdivide=False)
 
 
 def rb(chains=32, averaged=8, burn_in=8, resolution=16, **extra):
     """A ray_bundle dict with ``chains`` chains in lockstep, ``burn_in`` + ``averaged``
     iterations, the scene's triangles as patches."""
     return dict({"type": "ray_bundle", "chains": chains, "iterations": burn_in + averaged, "burn_in": burn_in,
-                 "resolution": resolution, "subdivide": False}, **extra)
+                 "resolution": resolution, "subdivide": False, "first_shot": False, "average_diffuse": False},
+                **extra)
 
 
 def test_subdivided_patches_stay_exact():
@@ -339,6 +343,47 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
     assert not res.passed and abs(res.z) > 8, res
 
 
+def test_diffuse_patches_share_one_direct_light_estimate(monkeypatch):
+    """first_shot on purely diffuse patches: one light sample per patch side and
+    iteration (the initial state and every reflection), shared by all 32 chains through
+    its running mean, not one per chain and patch. Exact in the furnace box; test of the
+    test: a shared mean 10 % low fails (the direct light is about a third of the
+    image: 3 % gave z = -4.9, within the bound)."""
+    from mi_plugins.integrators.ray_bundle import direct
+    calls, update = [], direct.SharedDirect.update
+
+    def counted(self):
+        calls.append((dr.width(self.sum), self.table.count))
+        update(self)
+    monkeypatch.setattr(direct.SharedDirect, "update", counted)
+    cfg = rb(32, first_shot=True)
+    assert check("furnace_box", cfg).passed
+    assert calls and all(width == count for width, count in calls)
+    per_render = cfg["iterations"] + 1
+    assert len(calls) % per_render == 0, (len(calls), per_render)
+    mean = direct.SharedDirect.mean
+    monkeypatch.setattr(direct.SharedDirect, "mean", lambda self, tri, active=True: mean(self, tri, active) * 0.9)
+    low = check("furnace_box", cfg)
+    assert not low.passed and low.z < -8, low
+
+
+def test_default_chains_fit_a_quarter_of_the_memory():
+    """chains=64 by default, fewer (at least 1) where 64 would need over a quarter of
+    the available memory; an explicit value is kept (and refused when it does not fit)."""
+    from mi_plugins.integrators.ray_bundle.transfer import BYTES_PER_LANE, ChainLayout
+
+    class Table:
+        count = 1000
+    lane = BYTES_PER_LANE * 2 * Table.count           # bytes per chain, two sides
+    assert ChainLayout.default_chains(64, Table, 2, None) == 64
+    assert ChainLayout.default_chains(64, Table, 2, 4 * lane * 100) == 64
+    assert ChainLayout.default_chains(64, Table, 2, 4 * lane * 10 + 1) == 10
+    assert ChainLayout.default_chains(64, Table, 2, 1) == 1
+    integ = mi.load_dict({"type": "ray_bundle"})
+    assert integ.chains is None and (integ.resolution, integ.iterations, integ.burn_in) == (32, 16, 8)
+    assert integ.first_shot and integ.average_diffuse
+
+
 # hide_emitters: the directly seen emission is left out of the image
 @pytest.mark.parametrize("first_shot", [False, True], ids=["plain", "first_shot"])
 def test_hide_emitters_removes_the_seen_emission(first_shot):
@@ -461,12 +506,13 @@ def test_gather_nee_splits_a_patch_constant_radiance():
     takes the first part at the gathered point and the second from its patch average,
     so the discretisation is no longer exact: the image mean is 0.6 % low (measured
     0.99397 +- 0.00010 at these 8 x 8 pixels, 224 runs; 0.9936 at 16 x 16 pixels; z about
-    -20 with 16 runs); gather_nee=false averages the constant sum and passes."""
+    -6.6 with 16 runs, the chains sharing each diffuse patch's direct light); gather_nee=false
+    averages the constant sum and passes."""
     case = analytic.cases()["bekaert_box"](resolution=8)
     cfg = rb(32, averaged=16, burn_in=16, first_shot=True, average_diffuse=True)
-    split = analytic.check(case, cfg, spp=1, runs=16, seed=1)
+    split = analytic.check(case, cfg, spp=1, runs=32, seed=1)
     whole = analytic.check(case, dict(cfg, gather_nee=False), spp=1, runs=16, seed=1)
-    assert not split.passed and split.z < -8, split
+    assert not split.passed and split.z < -5, split
     budget.close(split.mean, 0.9940, split.se, slack=0.001, what="gather_nee=true image mean (Bekaert box)")
     assert whole.passed, whole
 

@@ -14,15 +14,14 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.integrators.core import SPLAT_MODE
+from mi_plugins.integrators.ray_bundle.direct import purely_diffuse
 
 
 class DiffuseAverage:
 
     def __init__(self, layout, estimate, weight):
         table = layout.table
-        flags = np.array([shape.bsdf().flags() if shape.bsdf() is not None else 0 for shape in table.meshes],
-                         dtype=np.int64)
-        diffuse = ((flags & int(mi.BSDFFlags.All)) == int(mi.BSDFFlags.DiffuseReflection))[table.shape_index_np]
+        diffuse = purely_diffuse(table)
         self.covers_all = bool(np.all(diffuse))
         self.layout, self.estimate, self.weight = layout, estimate, weight
         self.mask = mi.Bool(diffuse)

@@ -20,7 +20,8 @@ import mitsuba as mi
 
 from mi_plugins import seeds
 from mi_plugins.integrators.camera import specular_chain
-from mi_plugins.integrators.ray_bundle.transfer import bsdf_over_cosine, direct_light_mis
+from mi_plugins.integrators.ray_bundle.direct import direct_light_mis
+from mi_plugins.integrators.ray_bundle.transfer import bsdf_over_cosine
 
 
 class ChainSources:

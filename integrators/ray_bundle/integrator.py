@@ -13,6 +13,12 @@ from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport, a
 from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
 from mi_plugins.params import Params
 
+#: the chains of the default (fewer where they would need over a quarter of the memory)
+DEFAULT_CHAINS = 64
+#: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
+#: bundles, the image from the chain's own patch values
+PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
+
 
 class RayBundleIntegrator(CoreIntegrator):
     r"""
@@ -37,11 +43,18 @@ class RayBundleIntegrator(CoreIntegrator):
     0.8 GB); a render needing more than the available memory is refused, naming the chains
     that fit (a warning above a quarter of it).
 
+    **Defaults** are the settings that measure best at equal time on the Cornell box and
+    the closed diffuse scenes (``docs/real_scenes.md``): 64 chains of 32 x 32 lines,
+    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``.
+    **Paper settings** (sections 5-6, the figure-7 reproduction): ``chains`` 1,
+    ``resolution`` 128, ``iterations`` 64, ``first_shot`` false, ``average_diffuse`` false
+    (``PAPER_SETTINGS`` in this module).
+
     .. pluginparameters::
 
      * - iterations
        - int
-       - 64
+       - 16
        - >= 1 global directions per unit of ``spp``
      * - burn_in
        - int
@@ -49,11 +62,11 @@ class RayBundleIntegrator(CoreIntegrator):
        - 0 .. iterations - 1 iterations left out of the image average
      * - resolution
        - int
-       - 128
+       - 32
        - >= 1 lines per side of the bundle
      * - chains
        - int
-       - 1
+       - 64, fewer where 64 would need over a quarter of the available memory
        - >= 1 chains (own directions, own patch radiances) advanced in lockstep by one
          kernel per iteration; the image averages them. 1 is the paper's algorithm;
          16-64 chains use the cores far better when ``resolution^2`` and the triangle
@@ -64,12 +77,15 @@ class RayBundleIntegrator(CoreIntegrator):
        - use every line in both directions (A(i,j,w) = A(j,i,-w))
      * - first_shot
        - bool
-       - false
+       - true
        - direct light by next-event estimation: one light sample and one BSDF sample
          (MIS) per patch point and per camera sample; the bundles then carry only the
-         reflected radiance L - Le. Unbiased like the default, and far less noisy where
-         direct light dominates (small lights: 4-7x lower RMSE at equal time in the
-         benchmark's room). false is the paper's algorithm
+         reflected radiance L - Le. A purely diffuse patch reflects its direct light the
+         same way in every direction: all chains share one running mean per patch side
+         (one estimate per iteration), so the shadow rays are O(patches), not O(chains x
+         patches). Unbiased like the paper's transport, and far less noisy where direct
+         light dominates (small lights: 4-7x lower RMSE at equal time in the benchmark's
+         room). false is the paper's algorithm
      * - estimate
        - string
        - ``'gather'``
@@ -95,14 +111,14 @@ class RayBundleIntegrator(CoreIntegrator):
          ``direction_sequence`` is an error
      * - average_diffuse
        - bool
-       - false
+       - true
        - final gathering from averaged diffuse patches: a purely diffuse patch reflects
          the same radiance in every direction, so all chains' values in all averaged
          iterations estimate one number; their per-triangle average (O(triangles)
          memory) replaces the chain's value in the image, which is made after the
          iterations (one pass per averaged iteration; with ``first_shot`` the gathered
          point's own direct light by next-event estimation, never patch-averaged).
-         Unbiased like the default; far less noise. Non-diffuse patches keep the
+         Unbiased like the chains' own values; far less noise. Non-diffuse patches keep the
          per-chain estimate. false is the paper's algorithm
      * - gather_nee
        - bool
@@ -171,11 +187,11 @@ class RayBundleIntegrator(CoreIntegrator):
     def __init__(self, props=mi.Properties()):
         super().__init__(props)
         p = Params(props, "ray_bundle")
-        self.read_iterations(p, 64)
-        self.resolution = p.int("resolution", 128, lo=1)
-        self.chains = p.int("chains", 1, lo=1)
+        self.read_iterations(p, 16)
+        self.resolution = p.int("resolution", 32, lo=1)
+        self.chains = p.int("chains", None, lo=1)       # None: DEFAULT_CHAINS, fewer to fit memory
         self.bidirectional = p.bool("bidirectional", True)
-        self.first_shot = p.bool("first_shot", False)
+        self.first_shot = p.bool("first_shot", True)
         self.estimate = p.choice("estimate", "gather", tuple(ESTIMATORS))
         self.direction_sequence = p.choice("direction_sequence", "independent", SEQUENCES)
         independent = self.direction_sequence == "independent"
@@ -184,7 +200,7 @@ class RayBundleIntegrator(CoreIntegrator):
             raise p.conflict(("stratify_chains", "direction_sequence"),
                              "stratify_chains=true needs direction_sequence='independent' (the other sequences "
                              "give every chain its own sequence)")
-        self.average_diffuse = p.bool("average_diffuse", False)
+        self.average_diffuse = p.bool("average_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide = patch_parameters(p)
 
@@ -230,12 +246,14 @@ class RayBundleIntegrator(CoreIntegrator):
         scene, seed = frame.scene, frame.seed
         self._check_emitters(scene)
         table = MeshTable(scene, "ray_bundle", h=self.patch_size_for(scene), back_sides=True, subdivide=self.subdivide)
-        layout = ChainLayout(table, self.chains, 2 if self.bidirectional else 1)
-        layout.check_memory(available_memory())
+        sides, memory = 2 if self.bidirectional else 1, available_memory()
+        chains = self.chains or ChainLayout.default_chains(DEFAULT_CHAINS, table, sides, memory)
+        layout = ChainLayout(table, chains, sides)
+        layout.check_memory(memory)
         self._warn_delta(scene)
         transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
         total, burn_in = self.iterations * frame.spp, self.burn_in
-        directions = global_directions(self.direction_sequence, total + 1, self.chains,
+        directions = global_directions(self.direction_sequence, total + 1, chains,
                                        seeds.numpy_rng(seed, "directions"), self.stratify_chains, self.bidirectional)
         estimator = ESTIMATORS[self.estimate](transport, self.hide_emitters, seed)
         average = DiffuseAverage(layout, self.estimate, transport.weight) if self.average_diffuse else None
@@ -244,7 +262,7 @@ class RayBundleIntegrator(CoreIntegrator):
         # are) and the final gathering the averaged ones
         sources = ChainSources(layout, skip=average)
         image_iterations = average is None or not average.covers_all
-        frame.camera_passes(self.chains, (total - burn_in) * (int(image_iterations) + int(average is not None)))
+        frame.camera_passes(chains, (total - burn_in) * (int(image_iterations) + int(average is not None)))
         state = transport.initial(chain_directions(directions[0]))
         dr.eval(state, transport.state())
         steps = self.steps(total, burn_in, self.iteration_count(frame.spp))

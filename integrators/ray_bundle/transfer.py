@@ -15,7 +15,7 @@ import numpy as np
 
 from mi_plugins import seeds
 from mi_plugins.integrators.core import SPLAT_MODE
-from mi_plugins.sampling import direct_light
+from mi_plugins.integrators.ray_bundle.direct import SharedDirect, direct_light_mis
 
 #: a line continues past a hit from a point this far (relative to 1 + the largest
 #: coordinate) beyond the surface; Mitsuba's spawn_ray offsets ~90x more, which skips
@@ -47,6 +47,14 @@ class ChainLayout:
         self.table, self.chains, self.sides, self.count = table, int(chains), int(sides), table.count
         self.slots = self.chains * self.count
         self.lanes = self.sides * self.slots
+
+    @staticmethod
+    def default_chains(chains, table, sides, available):
+        """``chains``, or fewer (at least 1) where they would need over a quarter of
+        ``available`` bytes (None: not known, ``chains``)."""
+        if available is None:
+            return int(chains)
+        return int(max(1, min(chains, available // (4 * BYTES_PER_LANE * sides * table.count))))
 
     def check_memory(self, available):
         """Refuse a layout whose iterations would need more than ``available`` bytes
@@ -94,13 +102,6 @@ def bounding_sphere(scene, table):
     return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
 
 
-def direct_light_mis(scene, si, bsdf, rng, active):
-    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS."""
-    light_sample = mi.Point2f(rng.next_float32(), rng.next_float32())
-    bsdf_sample = (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()))
-    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample)
-
-
 def bsdf_over_cosine(si, incoming, towards_source):
     """f(towards_source -> si.wi) * incoming, with f = bsdf.eval / |cos|, for sources on
     the side of ``si.wi`` (the back side of two-sided BSDFs included)."""
@@ -124,22 +125,33 @@ class Transport:
         # the environment emitter, a source the bundles carry (with first_shot it is
         # direct light, estimated by next-event estimation instead)
         self.environment = None if first_shot else scene.environment()
+        # with first_shot, the direct light of purely diffuse patches, shared by the chains
+        self.direct = SharedDirect(scene, layout.table, seed) if first_shot else None
 
     def state(self):
-        return self.rng_lines.state, self.rng_patch.state
+        return self.rng_lines.state, self.rng_patch.state, self.direct.state() if self.direct is not None else None
 
-    def source(self, si, rng):
-        """The radiance a patch point sends toward ``si.wi`` without the bundles'
-        transport: its emission, or with ``first_shot`` the direct light it reflects
-        (one light and one BSDF sample; no rays where ``si.wi`` is behind a surface that
-        neither transmits nor has a back side)."""
+    def source(self, si, tri):
+        """The radiance a patch point of patch ``tri`` sends toward ``si.wi`` without the
+        bundles' transport: its emission, or with ``first_shot`` the direct light it
+        reflects: the shared running mean of purely diffuse patches (updated here, once
+        per iteration), else one light and one BSDF sample of the lane (no rays where
+        ``si.wi`` is behind a surface that neither transmits nor has a back side)."""
         if not self.first_shot:
             return mi.Color3f(si.emitter(self.scene).eval(si))
+        direct = self.direct
+        direct.update()
+        if direct.covers_all:
+            return direct.mean(tri)
         bsdf = si.bsdf()
         flags = bsdf.flags()
         can_reach = ((mi.Frame3f.cos_theta(si.wi) > 0) | mi.has_flag(flags, mi.BSDFFlags.BackSide)
                      | mi.has_flag(flags, mi.BSDFFlags.Transmission))
-        return direct_light_mis(self.scene, si, bsdf, self.rng_patch, can_reach)
+        if not direct.any:
+            return direct_light_mis(self.scene, si, bsdf, self.rng_patch, can_reach)
+        shared = direct.is_shared(tri)
+        own = direct_light_mis(self.scene, si, bsdf, self.rng_patch, can_reach & ~shared)
+        return dr.select(shared, direct.mean(tri), own)
 
     def _patch_points(self, dirs):
         """A uniformly random point of every patch on every lane, seen from the lane's
@@ -151,8 +163,8 @@ class Transport:
 
     def initial(self, dirs):
         """L_0 = the source term along every side of ``dirs`` (nothing carried yet)."""
-        si, _, _ = self._patch_points(dirs)
-        return IterationState(dirs, self.source(si, self.rng_patch), dr.zeros(mi.Color3f, self.layout.lanes))
+        si, tri, _ = self._patch_points(dirs)
+        return IterationState(dirs, self.source(si, tri), dr.zeros(mi.Color3f, self.layout.lanes))
 
     def transfer(self, state):
         """Walk every chain's bundle of parallel lines along its direction d (jittered
@@ -232,4 +244,4 @@ class Transport:
         for j in range(layout.sides):   # radiance arriving along +d comes from -d, and back
             arriving = dr.gather(mi.Color3f, incoming, layout.slot_of(tri, chain, j))
             R += self.weight * bsdf_over_cosine(si, arriving / area, d * (2.0 * j - 1.0))
-        return IterationState(new_dirs, self.source(si, self.rng_patch) + R, R)
+        return IterationState(new_dirs, self.source(si, tri) + R, R)

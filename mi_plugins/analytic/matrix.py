@@ -91,7 +91,8 @@ def _ray_bundle(params, averaged, quick_averaged, **spec):
     def iterations(burn_in, n):
         return {"burn_in": burn_in, "iterations": burn_in + n}
     quick = dict({"chains": 16, "resolution": 16}, **spec.pop("quick_params", {}))
-    return IntegratorSpec(dict({"type": "ray_bundle"}, **params, **iterations(8, averaged)), spp=1, quick_spp=1,
+    paper = {"type": "ray_bundle", "chains": 1, "first_shot": False, "average_diffuse": False}  # unless `params` says
+    return IntegratorSpec(dict(paper, **params, **iterations(8, averaged)), spp=1, quick_spp=1,
                           case_params={name: iterations(32, averaged) for name in HIGH_ALBEDO_CASES},
                           quick_params=dict(quick, **iterations(8, quick_averaged)),
                           quick_case_params={name: iterations(32, quick_averaged) for name in HIGH_ALBEDO_CASES},

@@ -100,7 +100,7 @@ STOCHASTIC_RAY = IntegratorSpec(
 
 RAY_BUNDLE = IntegratorSpec(
     "ray_bundle", {"type": "ray_bundle", "chains": 32, "resolution": 16, "first_shot": True, "iterations": 20,
-                   "burn_in": 12}, spp=1,
+                   "burn_in": 12, "average_diffuse": False}, spp=1,
     not_applicable={"mirror": NotApplicable(BUNDLE_DELTA), "glass": NotApplicable(BUNDLE_DELTA),
                     "mirror_lit": NotApplicable(BUNDLE_DELTA)},
     bias={name: PATCHES for name in INTERREFLECTING},
@@ -130,7 +130,7 @@ DELTA_LIGHT = Refused(r"emitter 'light' \((PointLight|SpotLight|DirectionalEmitt
                       "first_shot's next-event estimation")
 RAY_BUNDLE_PAPER = IntegratorSpec(
     "ray_bundle(first_shot=false)", {"type": "ray_bundle", "chains": 8, "resolution": 16, "iterations": 4,
-                                     "burn_in": 2, "first_shot": False}, spp=1, runs=2,
+                                     "burn_in": 2, "first_shot": False, "average_diffuse": False}, spp=1, runs=2,
     refused={name: DELTA_LIGHT for name in ("point_light", "spot_light", "directional_light")})
 
 #: combinations outside the main table that must end REFUSED: (scene, spec), run by verify() and the tests
