@@ -41,7 +41,11 @@ GREEN = (0.105421, 0.37798, 0.076425)
 EMISSION = (18.4, 15.6, 8.0)
 CAMERA = dict(origin=(278.0, 273.0, -800.0), target=(278.0, 273.0, -799.0), up=(0.0, 1.0, 0.0), fov=39.3)
 RFILTER = "box"
-BLOB_FREQUENCY = {"cornell": 0, "cornell_70k": 59, "cornell_1m": 224}   # k: 20 k^2 triangles
+BLOB_FREQUENCY = {"cornell": 0, "cornell_70k": 59, "cornell_1m": 224, "cornell_closed": 0}   # k: 20 k^2 triangles
+#: the closed box: a white front wall at z = 0 and the camera inside, 3 cm behind it
+CLOSED = {"cornell_closed"}
+FRONT = [[556.0, 548.8, 0], [0, 548.8, 0], [0, 0, 0], [552.8, 0, 0]]
+CLOSED_CAMERA = dict(origin=(278.0, 273.0, 30.0), target=(278.0, 273.0, 31.0), up=(0.0, 1.0, 0.0), fov=84.0)
 SCENES = tuple(BLOB_FREQUENCY)
 
 # Published Cornell box data (mm): one row per quad, four corners each.
@@ -105,6 +109,8 @@ def meshes(name):
     inward = lambda c: np.asarray(BOX_CENTER) * SCALE - c
     out = {w: (quads_mesh(q, inward), RED if w == "left" else GREEN if w == "right" else WHITE)
            for w, q in WALLS.items()}
+    if name in CLOSED:
+        out["front"] = (quads_mesh(FRONT, inward), WHITE)
     for b, quads in BLOCKS.items():
         center = np.asarray(quads, dtype=np.float64).reshape(-1, 3).mean(axis=0) * SCALE
         out[b] = (quads_mesh(quads, lambda c: c - center), WHITE)
@@ -122,7 +128,8 @@ def scene_dict(name, resolution):
     if name not in BLOB_FREQUENCY:
         raise ValueError("unknown scene %r; choose from %s" % (name, ", ".join(SCENES)))
     light = quads_mesh(LIGHT, lambda c: np.tile([0.0, -1.0, 0.0], (len(c), 1)))
-    cam = {k: [c * SCALE for c in v] if k in ("origin", "target") else v for k, v in CAMERA.items()}
+    camera = CLOSED_CAMERA if name in CLOSED else CAMERA
+    cam = {k: [c * SCALE for c in v] if k in ("origin", "target") else v for k, v in camera.items()}
     d = {"type": "scene",
          "sensor": {"type": "perspective", "fov": cam["fov"], "fov_axis": "x",
                     "to_world": mi.ScalarTransform4f().look_at(origin=cam["origin"], target=cam["target"],
@@ -143,7 +150,8 @@ def reference_path(name, resolution, spp):
     """Cache file of a scene's reference: keyed by a hash of everything that sets the image."""
     d, _ = scene_dict(name, resolution)
     files = sorted(os.path.basename(v["filename"]) for v in d.values() if isinstance(v, dict) and "filename" in v)
-    key = hashlib.sha1(repr((files, WHITE, RED, GREEN, EMISSION, CAMERA, RFILTER, SCALE, resolution, spp))
+    closed = (CLOSED_CAMERA,) if name in CLOSED else ()
+    key = hashlib.sha1(repr((files, WHITE, RED, GREEN, EMISSION, CAMERA, RFILTER, SCALE, resolution, spp) + closed)
                        .encode()).hexdigest()[:12]
     return os.path.join(CACHE, "real_scenes_%s_%dpx_%dspp_%s.npy" % (name, resolution, spp, key))
 

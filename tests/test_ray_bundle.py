@@ -683,7 +683,7 @@ def test_a_coarse_line_offset_would_skip_the_lamp(monkeypatch):
 
 
 def test_a_layout_beyond_the_available_memory_is_refused(monkeypatch):
-    """chains x patch sides x 85 bytes (measured per lane) above the available memory:
+    """chains x patch sides x 120 bytes (measured per lane) above the available memory:
     a clear error naming the chains that fit, before any kernel runs (1 M triangles with
     64 chains needed 10.8 GB); above a quarter of it, a warning."""
     from mi_plugins.integrators.ray_bundle import integrator as module
@@ -691,7 +691,7 @@ def test_a_layout_beyond_the_available_memory_is_refused(monkeypatch):
     monkeypatch.setattr(module, "available_memory", lambda: 100_000)
     with pytest.raises(MemoryError, match=r"ray_bundle: chains=64 x 24 patch sides \(12 patches\) = 0.00154 M lanes "
                                           r"need about 0.0 GB per iteration, more than the 0.0 GB available; "
-                                          r"valid range here: chains <= 49"):
+                                          r"valid range here: chains <= 34"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
     monkeypatch.setattr(module, "available_memory", lambda: 400_000)
     with pytest.warns(RuntimeWarning, match="over a quarter of"):

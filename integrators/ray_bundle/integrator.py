@@ -39,7 +39,7 @@ class RayBundleIntegrator(CoreIntegrator):
     (2 pi per direction when bidirectional). Emission and BSDF are evaluated at a fresh
     uniformly random point of each patch every iteration (unbiased patch averages:
     textured emission and albedo work). Memory: O(chains x (patches + resolution^2)), no
-    per-pair storage: about 85 bytes per chain and patch side (64 chains on 70 k triangles:
+    per-pair storage: about 93-116 bytes per chain and patch side (64 chains on 70 k triangles:
     0.8 GB); a render needing more than the available memory is refused, naming the chains
     that fit (a warning above a quarter of it).
 
