@@ -11,17 +11,12 @@ from mi_plugins import qmc, seeds
 from mi_plugins.integrators.camera import specular_chain
 from mi_plugins.integrators.core import CoreIntegrator
 from mi_plugins.integrators.neighbours import share_with_neighbours
+from mi_plugins.integrators.qmc_particles import patch_side, trace_range
 from mi_plugins.meshtable import MeshTable, patch_parameters
 from mi_plugins.params import Params
 from mi_plugins.sampling import direct_light
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
-HEADROOM = 2.0 ** 12  #: fixed point: deposits above HEADROOM x the largest particle power are clamped
-
-
-def patch_side(table, si):
-    """2 x patch + side of hits ``si``: side 0 is the one the normal points to."""
-    return table.patch(si) * 2 + dr.select(mi.Frame3f.cos_theta(si.wi) < 0, 1, 0)
 
 
 class QMCLightTraceIntegrator(CoreIntegrator):
@@ -158,88 +153,47 @@ class QMCLightTraceIntegrator(CoreIntegrator):
                              "dimensions; sequence '%s' has %d" % ((limit - 4) // 2, self.sequence, self.max_depth,
                                                                     self.dims, self.sequence, limit))
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = None
-        self.paths_used, self.delta_e_history = 0, []
+        self.paths_used, self.delta_e_history, self.particles = 0, [], None
 
     # ------------------------------------------------------------------ preprocessing
-    def _trace_particles(self, scene, table, start, count, seed):
-        """Deposit the power of paths start .. start + count - 1 (one kernel); returns
-        (reflected power per patch side, numpy (K, 2, 3), emitted power (3,))."""
-        index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)   # opaque: no recompiling
-        u = lambda d: qmc.sample(self.sequence, index, d, dims=self.dims, scramble=self.scramble, seed=seed)
-        # light choice by dimension 0, rescaled and reused with dimension 1 for the position
-        emitter_index, choice_weight, u0 = scene.sample_emitter(u(0))
-        emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter_index)
-        ray, power = emitter.sample_ray(0.0, 0.5, mi.Point2f(u0, u(1)), mi.Point2f(u(2), u(3)))
-        if any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters()):
-            # environment and directional lights: a direction, then a point of a disk across the scene
-            # (Mitsuba 3.9's envmap sample_ray tilts that disk when the map is rotated: wrong power)
-            sphere, it = scene.bbox().bounding_sphere(), dr.zeros(mi.Interaction3f)
-            center, r, it.p = mi.Point3f(sphere.center), sphere.radius * 1.001 + 1e-4, mi.Point3f(sphere.center)
-            infinite = mi.has_flag(emitter.flags(), mi.EmitterFlags.Infinite)
-            ds, radiance = emitter.sample_direction(it, mi.Point2f(u(2), u(3)), infinite)
-            disk = mi.warp.square_to_uniform_disk_concentric(mi.Point2f(u0, u(1)))
-            origin = center + (ds.d + mi.Frame3f(ds.d).to_world(mi.Vector3f(disk.x, disk.y, 0))) * r
-            ray = dr.select(infinite, mi.Ray3f(origin, -ds.d), ray)
-            power = dr.select(infinite, radiance * (dr.pi * r * r), power)
-        power = mi.Color3f(power * choice_weight)
-        emitted = np.array(power, dtype=np.float64)
-        # order-independent sums: 64-bit fixed point (integer atomics), a power-of-two scale
-        # leaving room for count x (M + 1) deposits of up to HEADROOM x the largest power
-        cap = 2.0 ** 63 / (count * (self.max_depth + 1))
-        scale = 2.0 ** np.floor(np.log2(cap / (HEADROOM * max(emitted.max(), 1e-30))))
-        deposit = dr.zeros(mi.UInt64, 6 * table.count)    # [(patch * 2 + side) * 3 + channel]
-        ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        state = (ray,                               # the particle's next ray
-                 power,                             # its power
-                 dr.zeros(mi.UInt32, count),        # surface hits so far (deposits up to M + 1)
-                 dr.any(power != 0))                # still travelling
-
-        def body(ray, power, hits, active):
-            si = scene.ray_intersect(ray, active)
-            active &= si.is_valid()
-            bsdf = si.bsdf(ray)
-            # deposit on the sides the BSDF reflects from (a one-sided BSDF hit from behind absorbs)
-            side_flag = dr.select(mi.Frame3f.cos_theta(si.wi) < 0, mi.UInt32(mi.BSDFFlags.BackSide),
-                                  mi.UInt32(mi.BSDFFlags.FrontSide))
-            lit = active & ((bsdf.flags() & side_flag) != 0)
-            value = dr.minimum(power * bsdf.eval_diffuse_reflectance(si, active) * dr.opaque(mi.Float, scale),
-                               dr.opaque(mi.Float, cap))
-            slot = patch_side(table, si) * 3
-            for c in range(3):
-                dr.scatter_reduce(dr.ReduceOp.Add, deposit, mi.UInt64(value[c] + 0.5), slot + c, lit)
-            active &= hits < self.max_depth
-            dim = 4 + 2 * dr.minimum(hits, max(self.max_depth - 1, 0))     # dimensions of this bounce
-            bs, weight = bsdf.sample(ctx, si, u(dim), mi.Point2f(u(dim), u(dim + 1)), active)
-            power = dr.select(active, power * weight, 0.0)
-            return si.spawn_ray(si.to_world(bs.wo)), power, hits + 1, active & dr.any(power != 0)
-
-        dr.while_loop(state, lambda ray, power, hits, active: active, body)
-        reflected = np.array(deposit, dtype=np.uint64).astype(np.float64) / scale
-        return reflected.reshape(table.count, 2, 3), emitted.sum(axis=1)
-
     def preprocess(self, scene, seed=0):
         """Run the particle phase; returns (triangle_radiance (K, 2, 3), triangle_areas (K,))."""
         self._particle_phase(scene, seed)
         return self.triangle_radiance, self.triangle_areas
 
     def _particle_phase(self, scene, seed):
-        """The particle phase; keeps its numpy results and returns the patch table (never
-        kept on the integrator: it holds the scene, which holds the integrator, a cycle
-        that would keep every rendered scene alive)."""
-        table = MeshTable(scene, "qmc_lighttrace", h=self.patch_size, subdivide=self.subdivide)
+        """The particle phase (or the one given to :meth:`use_particles`); keeps its numpy
+        results and returns the patch table (never kept on the integrator: it holds the
+        scene, which holds the integrator, a cycle that would keep every rendered scene alive)."""
+        table = self.patch_table(scene)
+        areas = table.areas_np
+        self.delta_e_history = []
+        if self.particles is not None:
+            total, done = self.particles
+            if total.shape != (table.count, 2, 3):
+                raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene has %d "
+                                 "patches, shape (%d, 2, 3)" % (total.shape, table.count, table.count))
+        elif self.epsilon is None:   # fixed N: chunks of CHUNK paths (the estimate is the same)
+            total, done = trace_range(self, scene, table, 0, self.samples, seed)[0], self.samples
+        else:
+            total, done = self._adaptive_phase(scene, table, seed)
+        self.paths_used = done
+        self.reflected_radiance = total / done / (np.pi * areas[:, None, None])
+        self.triangle_radiance = self.reflected_radiance + self._triangle_emission(scene, table)
+        self.triangle_areas = areas
+        self.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
+        return table
+
+    def _adaptive_phase(self, scene, table, seed):
+        """Batches of ``batch`` paths until the patch radiances change by less than
+        ``epsilon`` ``patience`` times in a row (or ``max_samples``): (deposits, paths)."""
         areas = table.areas_np
         total, emitted = np.zeros((table.count, 2, 3)), np.zeros(3)
-        adaptive, done, below, previous = self.epsilon is not None, 0, 0, None
-        goal = self.max_samples if adaptive else self.samples
-        self.delta_e_history = []
-        while done < goal:  # fixed N: chunks bound the memory (the estimate is the same)
-            n = min(self.batch if adaptive else 1 << 20, goal - done)
-            if scene.emitters():  # a scene without emitters stays black
-                deposit, power = self._trace_particles(scene, table, done, n, int(seed))
-                total, emitted = total + deposit, emitted + power
-            done += n
-            if not adaptive:
-                continue
+        done, below, previous = 0, 0, None
+        while done < self.max_samples:
+            n = min(self.batch, self.max_samples - done)
+            deposit, power = trace_range(self, scene, table, done, n, seed)
+            total, emitted, done = total + deposit, emitted + power, done + n
             current = total / done / (np.pi * areas[:, None, None])
             norm = max(float(emitted.mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
             if previous is not None:
@@ -250,12 +204,18 @@ class QMCLightTraceIntegrator(CoreIntegrator):
                 if below >= self.patience:
                     break
             previous = current
-        self.paths_used = done
-        self.reflected_radiance = total / done / (np.pi * areas[:, None, None])
-        self.triangle_radiance = self.reflected_radiance + self._triangle_emission(scene, table)
-        self.triangle_areas = areas
-        self.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
-        return table
+        return total, done
+
+    def patch_table(self, scene):
+        """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
+        return MeshTable(scene, "qmc_lighttrace", h=self.patch_size, subdivide=self.subdivide)
+
+    def use_particles(self, deposits, paths):
+        """Render with a particle phase traced elsewhere (e.g. summed over the ranges of a
+        distributed render, :func:`mi_plugins.integrators.qmc_particles.trace_range`):
+        ``deposits`` (K, 2, 3) reflected power per patch side of ``paths`` paths; None
+        returns to tracing the phase in every render."""
+        self.particles = None if deposits is None else (np.asarray(deposits, dtype=np.float64), int(paths))
 
     def _triangle_emission(self, scene, table):
         """Emitted radiance of each patch side (K, 2, 3), at its centroid along the normal."""

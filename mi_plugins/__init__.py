@@ -84,5 +84,9 @@ def register():
 
 if mi.variant() is None and _launched_as_cli():
     mi.set_variant(PRIMARY_VARIANT)
+elif mi.variant() is None and os.environ.get("MI_PLUGINS_VARIANT"):
+    # processes that import the package before any code of theirs runs, e.g. the Dask
+    # workers of a distributed render, which unpickle their task functions from it
+    mi.set_variant(os.environ["MI_PLUGINS_VARIANT"])
 
 registered = register()

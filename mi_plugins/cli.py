@@ -8,6 +8,8 @@ import re
 import sys
 import time
 
+from mi_plugins.passes import root_cause
+
 
 def _parser():
     p = argparse.ArgumentParser(prog="mi-plugins", description="Mitsuba 3 plugins with analytic verification.")
@@ -34,6 +36,14 @@ def _parser():
     r.add_argument("--seed", type=int, default=0, help="0 .. 42948 (42947 above 38452 passes)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="name=value",
                    help="set an XML $parameter (repeatable)")
+    where = r.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="render on a local Dask cluster of N worker processes (needs mi-plugins[distributed])")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="render on an existing Dask cluster, e.g. tcp://host:8786")
+    r.add_argument("--tasks", type=int, default=None, metavar="N",
+                   help="with --workers/--scheduler: tasks the render is split into (default 16; the image "
+                        "depends on it, not on the number of workers)")
     return p
 
 
@@ -103,6 +113,8 @@ def _render(args):
     if spp < 1:  # Mitsuba would die with SIGFPE
         raise ValueError("the scene's sampler has sample_count=%d; valid range: 1 or more (set it in the scene, "
                          "with -D spp=N where the scene reads $spp, or override it with --spp N)" % spp)
+    if args.workers is not None or args.scheduler is not None:
+        return _render_distributed(args, integrator, spp, defines)
     result = passes.render_in_passes(scene, spp=args.spp, passes=args.passes, seed=args.seed, progress_bar=True)
     meta = {"integrator": integrator,
             "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
@@ -115,6 +127,36 @@ def _render(args):
     print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
           % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, args.output))
     return 130 if result.interrupted and result.empty else 0
+
+
+def _render_distributed(args, integrator, spp, defines):
+    """``render --workers N`` / ``--scheduler ADDRESS``: the render split into tasks on Dask."""
+    from . import distributed, exr
+    if args.workers is not None and args.workers < 1:
+        raise ValueError("--workers %d: valid range: 1 or more" % args.workers)
+    if args.tasks is not None and args.tasks < 1:
+        raise ValueError("--tasks %d: valid range: 1 or more" % args.tasks)
+    distributed.require_dask()
+    if args.scheduler is not None:
+        from distributed import Client
+        client = Client(args.scheduler)
+    else:
+        client = distributed.local_cluster(args.workers)
+    try:
+        result = distributed.render(args.scene, spp, client=client, seed=args.seed, params=defines, tasks=args.tasks)
+    finally:
+        cluster = client.cluster if args.scheduler is None else None
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    meta = {"integrator": integrator, "spp": str(result.spp_done), "seed": str(args.seed),
+            "seconds": "%.3f" % result.seconds, "passes": "%d/%d" % (result.tasks_done, result.tasks),
+            "workers": str(result.workers), "scene": os.path.abspath(args.scene)}
+    exr.save(args.output, result.image, meta)
+    state = "interrupted after" if result.interrupted else "finished"
+    print("%s %d/%d tasks on %d workers (%d spp, %.2f s); wrote %s"
+          % (state, result.tasks_done, result.tasks, result.workers, result.spp_done, result.seconds, args.output))
+    return 130 if result.interrupted and result.tasks_done == 0 else 0
 
 
 def _integrator_name(integrator, scene_file, defines):
@@ -145,24 +187,11 @@ def main(argv=None):
     except Exception as e:  # one clear line instead of a traceback
         if os.environ.get("MI_PLUGINS_DEBUG"):
             raise
-        cause = _root_cause(e)
+        cause = root_cause(e)
         msg = _parameter_error(str(cause)) or str(cause).strip().splitlines()
         print("mi-plugins: error: %s" % (" ".join(m.strip() for m in msg) if msg else type(cause).__name__),
               file=sys.stderr)
         return 2
-
-
-def _root_cause(error):
-    """The innermost exception with a message along the ``__cause__`` chain: mi.render
-    wraps an exception raised in a Python integrator into a generic Dr.Jit RuntimeError
-    ("error while performing a custom differentiable operation")."""
-    best, seen = error, set()
-    while error is not None and id(error) not in seen:
-        seen.add(id(error))
-        if str(error).strip():
-            best = error
-        error = error.__cause__
-    return best
 
 
 def _parameter_error(text):

@@ -52,6 +52,19 @@ def check_seed(seed, passes):
         raise ValueError("seed=%d is out of range; valid range: 0 .. %d (with %d passes)" % (seed, top, passes))
 
 
+def root_cause(error):
+    """The innermost exception with a message along the ``__cause__`` chain: mi.render
+    wraps an exception raised in a Python integrator into a generic Dr.Jit RuntimeError
+    ("error while performing a custom differentiable operation")."""
+    best, seen = error, set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if str(error).strip():
+            best = error
+        error = error.__cause__
+    return best
+
+
 def split_spp(spp, passes):
     """Split ``spp`` into at most ``passes`` positive parts that differ by at most one."""
     passes = max(1, min(int(passes), int(spp)))

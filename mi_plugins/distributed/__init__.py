@@ -1,0 +1,114 @@
+"""Rendering across processes and machines on Dask: the same image whatever the number
+of workers.
+
+    from mi_plugins import distributed
+    result = distributed.render("scene.xml", spp=256, seed=0)          # a LocalCluster, one worker per core
+    result = distributed.render("scene.xml", spp=256, client=client)    # an existing cluster
+    result.image                                                        # (H, W, 3) float32
+
+The split and merge are engine-neutral plain functions (:mod:`.plan`); Dask only runs
+them (:mod:`.dask_engine`). The scene file and every file it references by a relative
+path are shipped with the tasks (:mod:`.scene_bundle`); files referenced by an absolute
+path must be on a filesystem every worker sees. Dask is an optional dependency:
+``pip install mi-plugins[distributed]``.
+"""
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from mi_plugins.distributed import plan
+from mi_plugins.distributed.scene_bundle import bundle
+
+INSTALL = "distributed rendering needs Dask: pip install 'mi-plugins[distributed]' (dask[distributed])"
+
+
+@dataclass
+class DistributedResult:
+    image: np.ndarray      # (H, W, C) float32, the merged finished passes (zeros when none finished)
+    spp_done: int
+    tasks_done: int        # passes merged into the image
+    tasks: int             # passes planned
+    seconds: float
+    interrupted: bool
+    workers: int
+    particle_tasks: int = 0    # qmc_lighttrace: ranges of the particle phase
+
+
+def require_dask():
+    try:
+        import distributed  # noqa: F401
+    except ImportError as error:
+        raise ImportError(INSTALL) from error
+
+
+def local_cluster(workers):
+    """A LocalCluster of ``workers`` worker processes, one thread each (Dr.Jit's own threads
+    per worker: the cores divided among the workers), and its client. The workers get
+    ``MI_PLUGINS_VARIANT`` (this process's variant): they import the package when they
+    unpickle their first task, before any code of theirs could set it."""
+    require_dask()
+    from distributed import Client, LocalCluster
+    import mitsuba as mi
+    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
+                           env={"MI_PLUGINS_VARIANT": mi.variant() or "llvm_ad_rgb"})
+    return Client(cluster)
+
+
+def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, progress=True):
+    """Render ``scene_file`` with ``spp`` samples per pixel in ``tasks`` tasks (default
+    ``plan.DEFAULT_TASKS``; fixed, so the image does not depend on the workers) on
+    ``client`` (default: a LocalCluster with one worker process per core, closed at the
+    end). ``params``: the scene's XML ``$parameters``. Returns a :class:`DistributedResult`."""
+    import mitsuba as mi
+    require_dask()
+    params = {k: str(v) for k, v in (params or {}).items()}
+    tasks = plan.DEFAULT_TASKS if tasks is None else int(tasks)
+    if int(spp) < 1 or tasks < 1:
+        raise ValueError("spp=%s, tasks=%s: valid range: 1 or more each" % (spp, tasks))
+    scene = mi.load_file(scene_file, **params)      # errors of the scene surface here, before any task
+    if scene.integrator() is None:
+        raise ValueError("scene '%s' has no integrator" % scene_file)
+    shipped = bundle(scene_file, params)
+    own = client is None
+    if own:
+        client = local_cluster(os.cpu_count() or 1)
+    try:
+        workers = max(len(client.scheduler_info().get("workers", {})), 1)
+        threads = max(1, (os.cpu_count() or 1) // workers) if own else None
+        return _render(client, scene, shipped, params, int(spp), int(seed), tasks, threads, progress, workers)
+    finally:
+        if own:
+            cluster = client.cluster
+            client.close()
+            cluster.close()
+
+
+def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress, workers):
+    from mi_plugins.distributed.dask_engine import run_tasks
+    t0 = time.perf_counter()
+    remote = client.scatter(shipped, broadcast=True)
+    particles, n_particle = None, 0
+    if getattr(scene.integrator(), "plugin", None) == "qmc_lighttrace":
+        integ = scene.integrator()
+        if integ.epsilon is not None:
+            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
+                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
+                             % integ.epsilon)
+        ranges = plan.particle_tasks(integ.samples, tasks, seed)
+        n_particle = len(ranges)
+        found, stopped = run_tasks(client, plan.run_particles, ranges, ((remote, params), threads), progress,
+                                   "particles")
+        if stopped:
+            raise KeyboardInterrupt
+        particles = client.scatter((plan.merge_particles(found, ranges), integ.samples), broadcast=True)
+    passes = plan.pass_tasks(spp, tasks, seed)
+    found, stopped = run_tasks(client, plan.run_pass, passes, ((remote, params), threads, particles), progress,
+                               "passes")
+    image, spp_done = plan.merge_passes(found, passes)
+    if image is None:
+        size = scene.sensors()[0].film().crop_size()
+        image = np.zeros((size[1], size[0], 3), dtype=np.float32)
+    return DistributedResult(image, spp_done, len(found), len(passes), time.perf_counter() - t0, stopped,
+                             workers, n_particle)

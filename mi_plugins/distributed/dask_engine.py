@@ -1,0 +1,60 @@
+"""Running the tasks of :mod:`.plan` on a Dask cluster (``dask.distributed``).
+
+:func:`run_tasks` submits one task per :class:`~.plan.Task` (``pure=False``: a rerun is a
+new computation, never a cached result), collects the results as they complete (a
+progress bar over all tasks), and returns them by task index, so the merge order never
+depends on which worker finished first. A worker lost mid-render is Dask's to handle: its
+tasks are rerun elsewhere, and as a task's result depends only on the task, the image is
+unchanged. A task that raises stops the render: the other tasks are cancelled and the
+task's exception is raised, with the task named. Ctrl-C cancels the outstanding tasks and
+returns what finished (``interrupted``).
+"""
+import uuid
+
+
+class TaskFailed(RuntimeError):
+    """A task raised: ``task`` and ``error`` (the original exception, also the cause)."""
+
+    def __init__(self, task, total, error):
+        super().__init__("distributed render: %s failed: %s: %s" % (task.describe(total), type(error).__name__, error))
+        self.task, self.error = task, error
+
+
+def _bar(total, desc, show):
+    if not show:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=desc, unit="task")
+
+
+def run_tasks(client, fn, tasks, args, progress=True, desc="tasks"):
+    """Run ``fn(*args[0], task, *args[1:])`` for every task on ``client``: returns
+    (results: index -> value, interrupted)."""
+    from distributed import as_completed
+    tag = uuid.uuid4().hex[:8]
+    head, tail = args[0], tuple(args[1:])
+    futures = {client.submit(fn, *head, task, *tail, key="mi-plugins-%s-%s-%d" % (tag, task.kind, task.index),
+                             pure=False): task for task in tasks}
+    results, bar = {}, _bar(len(tasks), desc, progress)
+    try:
+        for future in as_completed(list(futures)):
+            task = futures[future]
+            if future.status == "error":
+                error = future.exception()
+                raise TaskFailed(task, len(tasks), error) from error
+            results[task.index] = future.result()
+            if bar is not None:
+                bar.update(1)
+    except KeyboardInterrupt:
+        client.cancel([f for f in futures if not f.done()])
+        return results, True
+    except BaseException:
+        client.cancel(list(futures))
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    return results, False

@@ -1,0 +1,135 @@
+"""How a render splits into tasks and how their results merge: plain functions, no
+engine (the Dask runner in :mod:`.dask_engine` only submits and collects them).
+
+- Every integrator (Mitsuba's, ``stochastic_ray``, ``ray_bundle``): *passes*, pass k
+  rendering ``spp_k`` samples with seed ``seed * SEED_STRIDE + k`` (fixed by the pass
+  index, never by the worker): exactly the passes of
+  :func:`mi_plugins.passes.render_in_passes` with ``passes = tasks``, merged by the same
+  sample-weighted left fold in pass order, so the image is the single-process one.
+- ``qmc_lighttrace``: first *particle* tasks, disjoint contiguous index ranges of one
+  sequence (their union is the single-process point set), whose per-patch deposits are
+  summed in range order; then *gather* passes as above, every one with that sum.
+
+The worker functions (:func:`run_pass`, :func:`run_particles`) take the shipped scene
+(:mod:`.scene_bundle`) and keep the loaded scene per process for the next task.
+"""
+import pickle
+from dataclasses import dataclass
+
+import numpy as np
+
+from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
+
+#: tasks of a render when not given: fixed, so that the image does not depend on the
+#: number of workers (16 tasks keep up to 16 workers busy; more tasks, more overhead)
+DEFAULT_TASKS = 16
+
+
+@dataclass(frozen=True)
+class Task:
+    kind: str          # 'pass' (also the gather passes of qmc_lighttrace) or 'particles'
+    index: int         # position in the merge order
+    spp: int = 0       # pass: samples per pixel
+    seed: int = 0      # pass: Mitsuba seed; particles: the render seed
+    start: int = 0     # particles: first path of the range
+    count: int = 0     # particles: paths in the range
+
+    def describe(self, total):
+        if self.kind == "pass":
+            return "pass %d of %d (%d spp, seed %d)" % (self.index + 1, total, self.spp, self.seed)
+        return "particle range %d of %d (paths %d .. %d)" % (self.index + 1, total, self.start,
+                                                              self.start + self.count - 1)
+
+
+def pass_tasks(spp, tasks, seed):
+    """The passes of ``spp`` samples in at most ``tasks`` tasks (ValueError for a seed
+    out of range)."""
+    parts = split_spp(spp, tasks)
+    check_seed(seed, len(parts))
+    return [Task("pass", k, spp=part, seed=int(seed) * SEED_STRIDE + k) for k, part in enumerate(parts)]
+
+
+def particle_tasks(samples, tasks, seed):
+    """``samples`` paths in at most ``tasks`` contiguous ranges (sizes differ by at most one)."""
+    sizes = split_spp(samples, tasks)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+    return [Task("particles", k, seed=int(seed), start=int(s), count=int(n))
+            for k, (s, n) in enumerate(zip(starts, sizes))]
+
+
+def merge_passes(results, tasks):
+    """The sample-weighted mean of the finished passes ``results`` (index -> float64
+    image), folded in pass order as :func:`mi_plugins.passes.render_in_passes` does;
+    (image float32, spp of the finished passes), or (None, 0) when none finished."""
+    accum, weight = None, 0
+    for task in tasks:
+        if task.index in results:
+            part = results[task.index] * task.spp
+            accum = part if accum is None else accum + part
+            weight += task.spp
+    return (None, 0) if accum is None else ((accum / weight).astype(np.float32), weight)
+
+
+def merge_particles(results, tasks):
+    """Sum of the ranges' deposits in range order."""
+    total = None
+    for task in tasks:
+        total = results[task.index] if total is None else total + results[task.index]
+    return total
+
+
+# ---------------------------------------------------------------------------- worker side
+_LOADED = {}     # (bundle digest, parameters) -> scene, per worker process
+
+
+def _scene(shipped, params, threads):
+    import drjit as dr
+    import mitsuba as mi
+    if mi.variant() != "llvm_ad_rgb":
+        mi.set_variant("llvm_ad_rgb")
+    import mi_plugins  # noqa: F401  (registers the plugins in this process)
+    from mi_plugins.distributed.scene_bundle import materialize
+    if threads:
+        dr.set_thread_count(int(threads))
+    key = (shipped.digest, tuple(sorted(params.items())))
+    if key not in _LOADED:
+        _LOADED.clear()                  # one scene per worker at a time: bounded memory
+        _LOADED[key] = mi.load_file(materialize(shipped), **params)
+    return _LOADED[key]
+
+
+def run_pass(shipped, params, task, threads=None, particles=None):
+    """Render one pass; ``particles`` = (deposits, paths) for qmc_lighttrace's gather passes."""
+    import mitsuba as mi
+    scene = _scene(shipped, params, threads)
+    integrator = scene.integrator()
+    if particles is not None:
+        integrator.use_particles(*particles)
+    try:
+        return np.array(mi.render(scene, spp=task.spp, seed=task.seed), dtype=np.float64)
+    except Exception as error:
+        raise _portable(error) from None
+    finally:
+        if particles is not None:
+            integrator.use_particles(None, 0)
+
+
+def _portable(error):
+    """The exception to send back: mi.render wraps a Python integrator's exception in a
+    Dr.Jit RuntimeError whose chain does not pickle; a fresh copy of the integrator's own
+    (same type and message), or a RuntimeError naming it."""
+    cause = root_cause(error)
+    try:
+        fresh = type(cause)(*cause.args)
+        pickle.loads(pickle.dumps(fresh))
+        return fresh
+    except Exception:
+        return RuntimeError("%s: %s" % (type(cause).__name__, cause))
+
+
+def run_particles(shipped, params, task, threads=None):
+    """The deposits (K, 2, 3) of one range of qmc_lighttrace's particle phase."""
+    from mi_plugins.integrators.qmc_particles import trace_range
+    scene = _scene(shipped, params, threads)
+    integrator = scene.integrator()
+    return trace_range(integrator, scene, integrator.patch_table(scene), task.start, task.count, task.seed)[0]

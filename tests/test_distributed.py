@@ -1,0 +1,203 @@
+"""Distributed rendering on Dask (mi_plugins.distributed): the image does not depend on
+the number of workers, it equals the single-process passes where those are
+deterministic, a killed worker loses nothing, a failing task stops the render clearly,
+the scene and its files are shipped with the tasks."""
+import os
+import re
+import shutil
+import signal
+import sys
+import threading
+import time
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from conftest import REPO
+
+pytest.importorskip("distributed")
+from mi_plugins import distributed, exr, passes  # noqa: E402
+from mi_plugins.distributed import dask_engine, plan, scene_bundle  # noqa: E402
+
+KELLER = os.path.join(REPO, "configs", "keller_cube.xml")   # L = 0.5 everywhere, 32 x 32 px
+INTEGRATORS = {
+    "path": '<integrator type="path"/>',
+    "stochastic_ray": '<integrator type="stochastic_ray"><integer name="iterations" value="12"/></integrator>',
+    "ray_bundle": '<integrator type="ray_bundle"><integer name="chains" value="8"/>'
+                  '<integer name="iterations" value="12"/></integrator>',
+    "qmc_lighttrace": '<integrator type="qmc_lighttrace"><integer name="samples" value="30000"/>'
+                      '<integer name="max_depth" value="12"/></integrator>',
+}
+
+
+def scene_copy(directory, integrator, extra=""):
+    """keller_cube.xml with ``integrator`` in ``directory`` (its mesh next to it, relative)."""
+    text = open(KELLER).read()
+    text = re.sub(r'<integrator type="\$integrator">\s*</integrator>', integrator + extra, text)
+    mesh = re.search(r'value="(meshes/[^"]+)"', text).group(1)
+    os.makedirs(os.path.join(directory, "meshes"), exist_ok=True)
+    shutil.copy(os.path.join(REPO, "configs", mesh), os.path.join(directory, mesh))
+    path = os.path.join(directory, "scene.xml")
+    with open(path, "w") as f:
+        f.write(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def clients():
+    """LocalClusters of 1, 2 and 3 worker processes (started once for the module)."""
+    made = {n: distributed.local_cluster(n) for n in (1, 2, 3)}
+    yield made
+    for client in made.values():
+        cluster = client.cluster
+        client.close()
+        cluster.close()
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scenes")
+    return {name: scene_copy(str(root / name), xml) for name, xml in INTEGRATORS.items()}
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_the_image_does_not_depend_on_the_number_of_workers(name, clients, scenes):
+    """1, 2 and 3 workers, the same seed and tasks: the same image, bit for bit for
+    `path` and `qmc_lighttrace` (their renders are deterministic); `stochastic_ray` and
+    `ray_bundle` sum floats with atomics inside a render, so their passes differ in the
+    last bits (measured here below 1e-5 relative; the tests allow 1e-4). Every image is
+    the exact 0.5 of Keller's cube to its noise."""
+    images = [distributed.render(scenes[name], 4, client=clients[n], seed=5, tasks=4, progress=False).image
+              for n in (1, 2, 3)]
+    for image in images[1:]:
+        if name in ("path", "qmc_lighttrace"):
+            assert np.array_equal(image, images[0])
+        else:
+            np.testing.assert_allclose(image, images[0], rtol=1e-4, atol=1e-6)
+    assert abs(images[0].mean() - 0.5) < 0.01, images[0].mean()
+
+
+def test_passes_equal_the_single_process_render(clients, scenes):
+    """The split is render_in_passes' split: with tasks = passes and the same seed the
+    image is the same, bit for bit (`path`)."""
+    scene = mi.load_file(scenes["path"])
+    single = passes.render_in_passes(scene, spp=6, passes=3, seed=2).image
+    shared = distributed.render(scenes["path"], 6, client=clients[2], seed=2, tasks=3, progress=False)
+    assert np.array_equal(single, shared.image) and shared.spp_done == 6 and shared.tasks_done == 3
+
+
+def test_particle_ranges_are_the_single_process_point_set(clients, scenes):
+    """qmc_lighttrace's particle phase split into 3 ranges: the deposits equal one
+    single-process trace of all paths up to the fixed-point rounding of each range
+    (relative 1e-6); the gather then uses the sum. Test of the test: ranges that skip
+    one path differ."""
+    from mi_plugins.integrators.qmc_particles import trace_range
+    scene = mi.load_file(scenes["qmc_lighttrace"])
+    integ = scene.integrator()
+    table = integ.patch_table(scene)
+    whole = trace_range(integ, scene, table, 0, 30000, 7)[0]
+    ranges = plan.particle_tasks(30000, 3, 7)
+    assert [(t.start, t.count) for t in ranges] == [(0, 10000), (10000, 10000), (20000, 10000)]
+    parts = {t.index: trace_range(integ, scene, table, t.start, t.count, 7)[0] for t in ranges}
+    np.testing.assert_allclose(plan.merge_particles(parts, ranges), whole, rtol=1e-6, atol=1e-9 * whole.max())
+    parts[1] = trace_range(integ, scene, table, 10001, 9999, 7)[0]
+    assert not np.allclose(plan.merge_particles(parts, ranges), whole, rtol=1e-4)
+
+
+def test_a_killed_worker_loses_nothing(clients, scenes):
+    """One of two workers killed (SIGKILL, by its process id) while tasks run: Dask
+    reruns its tasks elsewhere and the image equals the undisturbed one."""
+    client = clients[2]
+    calm = distributed.render(scenes["path"], 16384, client=client, seed=9, tasks=16, progress=False).image
+    pids = client.run(os.getpid)
+    victim = sorted(pids.values())[0]
+    killed = threading.Event()
+
+    def kill():
+        time.sleep(0.3)
+        os.kill(victim, signal.SIGKILL)
+        killed.set()
+    threading.Thread(target=kill, daemon=True).start()
+    t0 = time.perf_counter()
+    hurt = distributed.render(scenes["path"], 16384, client=client, seed=9, tasks=16, progress=False)
+    assert killed.is_set(), "the render finished before the worker was killed (%.2f s)" % (time.perf_counter() - t0)
+    assert victim not in client.run(os.getpid).values()
+    assert np.array_equal(hurt.image, calm) and hurt.tasks_done == 16
+    client.wait_for_workers(2, timeout=60)
+
+
+def test_a_failing_task_stops_the_render_with_its_error(clients, tmp_path):
+    """ray_bundle without first_shot refuses a delta light when it renders (the scene
+    loads): the render stops with that error, naming the task, without hanging."""
+    path = scene_copy(str(tmp_path), '<integrator type="ray_bundle"><boolean name="first_shot" value="false"/>'
+                      '</integrator>', '<emitter type="point" id="bulb"><point name="position" x="0" y="0.5" '
+                      'z="0"/></emitter>')
+    t0 = time.perf_counter()
+    with pytest.raises(dask_engine.TaskFailed, match=r"pass \d of 4 .*delta light") as info:
+        distributed.render(path, 4, client=clients[2], tasks=4, progress=False)
+    assert isinstance(info.value.error, ValueError) and time.perf_counter() - t0 < 60
+
+
+def test_ctrl_c_keeps_the_finished_passes(clients, scenes, monkeypatch):
+    """Ctrl-C after the first finished task: the rest are cancelled and the image is the
+    finished pass alone."""
+    class Interrupting:
+        def update(self, n):
+            raise KeyboardInterrupt
+
+        def close(self):
+            pass
+    monkeypatch.setattr(dask_engine, "_bar", lambda total, desc, show: Interrupting())
+    res = distributed.render(scenes["path"], 8, client=clients[2], seed=4, tasks=4)
+    assert res.interrupted and res.tasks_done == 1 and res.spp_done == 2
+    one = passes.render_in_passes(mi.load_file(scenes["path"]), spp=8, passes=4, seed=4)
+    assert res.image.shape == one.image.shape and np.all(np.isfinite(res.image))
+
+
+def test_the_scene_and_its_files_are_shipped(tmp_path):
+    """The bundle holds the scene and its relative mesh; written elsewhere (the
+    original deleted) it loads and renders. A file referenced by an absolute path is not
+    shipped and a worker without it says so by name."""
+    path = scene_copy(str(tmp_path / "src"), INTEGRATORS["path"])
+    b = scene_bundle.bundle(path)
+    assert sorted(b.files) == sorted(["scene.xml", os.path.join("meshes", os.listdir(tmp_path / "src" / "meshes")[0])])
+    shutil.rmtree(tmp_path / "src")
+    image = np.array(mi.render(mi.load_file(scene_bundle.materialize(b)), spp=4))
+    assert abs(image.mean() - 0.5) < 0.05
+    b.absolute = ["/nonexistent/mesh.ply"]
+    with pytest.raises(FileNotFoundError, match="'/nonexistent/mesh.ply' by absolute path"):
+        scene_bundle.materialize(b)
+    broken = scene_copy(str(tmp_path / "broken"), INTEGRATORS["path"])
+    shutil.rmtree(tmp_path / "broken" / "meshes")
+    with pytest.raises(FileNotFoundError, match="references 'meshes/.*which does not exist"):
+        scene_bundle.bundle(broken)
+
+
+def test_adaptive_qmc_is_refused(clients, tmp_path):
+    path = scene_copy(str(tmp_path), '<integrator type="qmc_lighttrace"><float name="epsilon" value="0.01"/>'
+                      '</integrator>')
+    with pytest.raises(ValueError, match="qmc_lighttrace: epsilon=0.01 .* valid for distributed rendering"):
+        distributed.render(path, 2, client=clients[1], progress=False)
+
+
+def test_without_dask_the_option_says_how_to_install(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(ImportError, match=re.escape("pip install 'mi-plugins[distributed]'")):
+        distributed.render(KELLER, 2)
+
+
+def test_cli_render_with_workers(tmp_path):
+    """`mi-plugins render SCENE --workers 2`: the EXR and its metadata."""
+    import subprocess
+    out = tmp_path / "out.exr"
+    r = subprocess.run([sys.executable, "-m", "mi_plugins", "render", KELLER, "-o", str(out), "--spp", "8",
+                        "--workers", "2", "--tasks", "4", "--seed", "1"], capture_output=True, text=True, cwd=REPO,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "finished 4/4 tasks on 2 workers (8 spp" in r.stdout
+    image, meta = exr.read(str(out))
+    assert meta["workers"] == "2" and meta["passes"] == "4/4" and abs(image.mean() - 0.5) < 0.02
+    bad = subprocess.run([sys.executable, "-m", "mi_plugins", "render", KELLER, "-o", str(out), "--workers", "0"],
+                         capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert bad.returncode == 2 and "--workers 0: valid range: 1 or more" in bad.stderr
