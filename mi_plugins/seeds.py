@@ -23,6 +23,7 @@ STREAMS = {
     "gather": 8,        # ray_bundle's final gathering
     "particles": 9,     # qmc_lighttrace's sequence randomisation
     "direct": 10,       # ray_bundle's shared direct light of diffuse patches
+    "tasks": 11,        # render seeds of the chain tasks of a distributed ray_bundle render
 }
 
 

@@ -31,6 +31,18 @@ class DiffuseAverage:
     def state(self):
         return self.sum, self.count
 
+    def numpy(self):
+        """(sums (K, 3), counts (K,)) as float64 numpy arrays."""
+        sums = np.stack([np.array(c, dtype=np.float64) for c in (self.sum.x, self.sum.y, self.sum.z)], axis=1)
+        return sums, np.array(self.count, dtype=np.float64)
+
+    def load(self, sums, counts):
+        """Replace the averages by given sums (K, 3) and counts (K,), e.g. summed over the
+        chain tasks of a distributed render."""
+        sums = np.asarray(sums, dtype=np.float64)
+        self.sum = mi.Color3f(*(mi.Float(sums[:, c]) for c in range(3)))
+        self.count = mi.Float(np.asarray(counts, dtype=np.float64))
+
     def is_averaged(self, tri, active):
         return dr.gather(mi.Bool, self.mask, tri, active)
 

@@ -21,6 +21,7 @@ import mitsuba as mi
 from mi_plugins import seeds
 from mi_plugins.integrators.camera import specular_chain
 from mi_plugins.integrators.ray_bundle.direct import direct_light_mis
+from mi_plugins.integrators.ray_bundle.directions import chain_directions
 from mi_plugins.integrators.ray_bundle.transfer import bsdf_over_cosine
 
 
@@ -133,3 +134,30 @@ class PatchEstimator(Estimator):
 
 
 ESTIMATORS = {"gather": GatherEstimator, "patch": PatchEstimator}
+
+
+def final_gathering(frame, estimator, steps, directions, sources, first, count):
+    """The image of the averaged diffuse patches, the direct light and the seen emission
+    (``average_diffuse``): ``count`` passes, pass k with the chains' directions of
+    iteration ``first + k`` (one pass per averaged iteration that finished). Ctrl-C (or
+    the progress callback) ends it after the current pass."""
+    for k in steps.second_stage(count):
+        m = first + k
+        try:
+            state = ChainDirections(chain_directions(directions[m]))
+            estimator.put(frame, frame.camera_pass(), state, None, sources, m, "final")
+            dr.eval(frame.state())
+            frame.commit()
+        except KeyboardInterrupt:
+            frame.rollback()
+            if k == 0:
+                raise          # no finished pass: there is no image to keep
+            steps.stop()
+            break
+
+
+class ChainDirections:
+    """The part of an iteration state the final gathering needs: the directions."""
+
+    def __init__(self, dirs):
+        self.dirs, self.L = dirs, None

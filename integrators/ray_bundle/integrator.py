@@ -8,7 +8,7 @@ from mi_plugins import seeds
 from mi_plugins.integrators.core import CoreIntegrator
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, chain_directions, global_directions
-from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
+from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources, final_gathering
 from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport, available_memory
 from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
 from mi_plugins.params import Params
@@ -203,6 +203,7 @@ class RayBundleIntegrator(CoreIntegrator):
         self.average_diffuse = p.bool("average_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide = patch_parameters(p)
+        self.split = None      # a distributed render's task (see split.py); None: a whole render
 
     def iteration_count(self, spp):
         """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
@@ -243,20 +244,32 @@ class RayBundleIntegrator(CoreIntegrator):
                                  % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
 
     def render_frame(self, frame):
-        scene, seed = frame.scene, frame.seed
+        scene, seed, split = frame.scene, frame.seed, self.split
         self._check_emitters(scene)
         table = MeshTable(scene, "ray_bundle", h=self.patch_size_for(scene), back_sides=True, subdivide=self.subdivide)
         sides, memory = 2 if self.bidirectional else 1, available_memory()
-        chains = self.chains or ChainLayout.default_chains(DEFAULT_CHAINS, table, sides, memory)
+        chains = (split.chains if split is not None and split.chains else
+                  self.chains or ChainLayout.default_chains(DEFAULT_CHAINS, table, sides, memory))
         layout = ChainLayout(table, chains, sides)
-        layout.check_memory(memory)
+        gather_only = split is not None and split.mode == "gather"
+        if not gather_only:
+            layout.check_memory(memory)
         self._warn_delta(scene)
         transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
+        estimator = ESTIMATORS[self.estimate](transport, self.hide_emitters, seed)
+        average = DiffuseAverage(layout, self.estimate, transport.weight) if self.average_diffuse else None
+        if gather_only:          # a distributed render's gathering task: the averages are given
+            average.load(*split.average)
+            directions = global_directions(self.direction_sequence, split.passes, chains,
+                                           seeds.numpy_rng(seed, "directions"), self.stratify_chains,
+                                           self.bidirectional)
+            frame.camera_passes(chains, split.passes)
+            steps = self.steps(0, 0, split.passes)
+            return final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
+                                   0, split.passes)
         total, burn_in = self.iterations * frame.spp, self.burn_in
         directions = global_directions(self.direction_sequence, total + 1, chains,
                                        seeds.numpy_rng(seed, "directions"), self.stratify_chains, self.bidirectional)
-        estimator = ESTIMATORS[self.estimate](transport, self.hide_emitters, seed)
-        average = DiffuseAverage(layout, self.estimate, transport.weight) if self.average_diffuse else None
         # without averaging, every averaged iteration images everything; with it, the
         # iterations image only the patches that are not averaged (none to image when all
         # are) and the final gathering the averaged ones
@@ -280,36 +293,14 @@ class RayBundleIntegrator(CoreIntegrator):
         except KeyboardInterrupt:
             steps.stop()               # Ctrl-C: keep the finished iterations
             frame.rollback()
-        if average is not None and self.progress.averaged > 0:
-            self._final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee))
+        if split is not None:          # a distributed render's chain task: the averages, no image
+            split.result = average.numpy()
+        elif average is not None and self.progress.averaged > 0:
+            final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
+                            self.burn_in, self.progress.averaged)
 
     def _averaged_radiance(self, state):
         """What the diffuse averages hold: what the gathered point does not add itself (the
         reflected part R; with first_shot and gather_nee=false all of L but the emission,
         which then is the direct light)."""
         return state.L if self.first_shot and not self.gather_nee else state.R
-
-    def _final_gathering(self, frame, estimator, steps, directions, sources):
-        """The image of the averaged diffuse patches, the direct light and the seen
-        emission: one pass per averaged iteration that finished, with that iteration's
-        directions. Ctrl-C (or the progress callback) ends it after the current pass."""
-        for k in steps.second_stage(self.progress.averaged):
-            m = self.burn_in + k
-            try:
-                state = ChainDirections(chain_directions(directions[m]))
-                estimator.put(frame, frame.camera_pass(), state, None, sources, m, "final")
-                dr.eval(frame.state())
-                frame.commit()
-            except KeyboardInterrupt:
-                frame.rollback()
-                if k == 0:
-                    raise          # no finished pass: there is no image to keep
-                steps.stop()
-                break
-
-
-class ChainDirections:
-    """The part of an iteration state the final gathering needs: the directions."""
-
-    def __init__(self, dirs):
-        self.dirs, self.L = dirs, None

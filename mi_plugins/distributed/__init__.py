@@ -20,6 +20,7 @@ import numpy as np
 
 from mi_plugins.distributed import plan
 from mi_plugins.distributed.scene_bundle import bundle
+from mi_plugins.integrators.ray_bundle.split import final_passes, splits_by_chains
 
 INSTALL = "distributed rendering needs Dask: pip install 'mi-plugins[distributed]' (dask[distributed])"
 
@@ -34,6 +35,7 @@ class DistributedResult:
     interrupted: bool
     workers: int
     particle_tasks: int = 0    # qmc_lighttrace: ranges of the particle phase
+    chain_tasks: int = 0       # ray_bundle: groups of chains (then ``tasks`` gathering tasks)
 
 
 def require_dask():
@@ -43,9 +45,10 @@ def require_dask():
         raise ImportError(INSTALL) from error
 
 
-def local_cluster(workers):
-    """A LocalCluster of ``workers`` worker processes, one thread each (Dr.Jit's own threads
-    per worker: the cores divided among the workers), and its client. The workers get
+def local_cluster(workers, threads=None):
+    """A LocalCluster of ``workers`` worker processes, one Dask thread each, and its client;
+    Dr.Jit's threads per worker: ``threads``, by default the cores divided among the
+    workers (at least 1; kept on the client for :func:`render`). The workers get
     ``MI_PLUGINS_VARIANT`` (this process's variant): they import the package when they
     unpickle their first task, before any code of theirs could set it."""
     require_dask()
@@ -53,7 +56,9 @@ def local_cluster(workers):
     import mitsuba as mi
     cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
                            env={"MI_PLUGINS_VARIANT": mi.variant() or "llvm_ad_rgb"})
-    return Client(cluster)
+    client = Client(cluster)
+    client.mi_plugins_threads = int(threads) if threads else max(1, (os.cpu_count() or 1) // int(workers))
+    return client
 
 
 def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, progress=True):
@@ -76,7 +81,7 @@ def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, pro
         client = local_cluster(os.cpu_count() or 1)
     try:
         workers = max(len(client.scheduler_info().get("workers", {})), 1)
-        threads = max(1, (os.cpu_count() or 1) // workers) if own else None
+        threads = getattr(client, "mi_plugins_threads", None)    # None: Dr.Jit's default on each worker
         return _render(client, scene, shipped, params, int(spp), int(seed), tasks, threads, progress, workers)
     finally:
         if own:
@@ -88,7 +93,7 @@ def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, pro
 def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress, workers):
     from mi_plugins.distributed.dask_engine import run_tasks
     t0 = time.perf_counter()
-    remote = client.scatter(shipped, broadcast=True)
+    remote = client.scatter(shipped, broadcast=True, hash=False)   # own key: never a released twin
     particles, n_particle = None, 0
     if getattr(scene.integrator(), "plugin", None) == "qmc_lighttrace":
         integ = scene.integrator()
@@ -102,7 +107,10 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
                                    "particles")
         if stopped:
             raise KeyboardInterrupt
-        particles = client.scatter((plan.merge_particles(found, ranges), integ.samples), broadcast=True)
+        particles = client.scatter((plan.merge_particles(found, ranges), integ.samples), broadcast=True,
+                                   hash=False)
+    elif getattr(scene.integrator(), "plugin", None) == "ray_bundle" and splits_by_chains(scene.integrator(), scene):
+        return _ray_bundle(client, scene, remote, params, spp, seed, tasks, threads, progress, workers, t0)
     passes = plan.pass_tasks(spp, tasks, seed)
     found, stopped = run_tasks(client, plan.run_pass, passes, ((remote, params), threads, particles), progress,
                                "passes")
@@ -112,3 +120,25 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
         image = np.zeros((size[1], size[0], 3), dtype=np.float32)
     return DistributedResult(image, spp_done, len(found), len(passes), time.perf_counter() - t0, stopped,
                              workers, n_particle)
+
+
+def _ray_bundle(client, scene, remote, params, spp, seed, tasks, threads, progress, workers, t0):
+    """ray_bundle's chain tasks, their averages summed, then the gathering tasks."""
+    from mi_plugins.distributed.dask_engine import run_tasks
+    from mi_plugins.integrators.ray_bundle.integrator import DEFAULT_CHAINS
+    integ = scene.integrator()
+    groups = plan.chain_tasks(integ.chains or DEFAULT_CHAINS, spp, tasks, seed)
+    found, stopped = run_tasks(client, plan.run_chains, groups, ((remote, params), threads), progress, "chains")
+    if stopped:
+        raise KeyboardInterrupt
+    average = client.scatter(plan.merge_sums(found, groups), broadcast=True, hash=False)
+    total = final_passes(integ, spp)
+    gathers = plan.gathering_tasks(total, tasks, seed)
+    found, stopped = run_tasks(client, plan.run_gathering, gathers, ((remote, params), threads, average), progress,
+                               "gathering")
+    image, passes_done = plan.merge_passes(found, gathers)
+    if image is None:
+        size = scene.sensors()[0].film().crop_size()
+        image = np.zeros((size[1], size[0], 3), dtype=np.float32)
+    return DistributedResult(image, spp * passes_done // max(total, 1), len(found), len(gathers),
+                             time.perf_counter() - t0, stopped, workers, 0, len(groups))

@@ -9,6 +9,11 @@ engine (the Dask runner in :mod:`.dask_engine` only submits and collects them).
 - ``qmc_lighttrace``: first *particle* tasks, disjoint contiguous index ranges of one
   sequence (their union is the single-process point set), whose per-patch deposits are
   summed in range order; then *gather* passes as above, every one with that sum.
+- ``ray_bundle`` with ``average_diffuse`` on purely diffuse scenes: first *chain* tasks
+  (the chains split into groups, each with its own seed, through all iterations), whose
+  per-patch average sums and counts are summed in task order; then *gathering* tasks
+  (the final-gathering passes split into groups), merged by their pass counts
+  (:mod:`mi_plugins.integrators.ray_bundle.split`). Other ``ray_bundle`` renders: passes.
 
 The worker functions (:func:`run_pass`, :func:`run_particles`) take the shipped scene
 (:mod:`.scene_bundle`) and keep the loaded scene per process for the next task.
@@ -27,18 +32,23 @@ DEFAULT_TASKS = 16
 
 @dataclass(frozen=True)
 class Task:
-    kind: str          # 'pass' (also the gather passes of qmc_lighttrace) or 'particles'
+    kind: str          # 'pass' (also qmc_lighttrace's gather passes), 'particles', 'chains', 'gathering'
     index: int         # position in the merge order
-    spp: int = 0       # pass: samples per pixel
-    seed: int = 0      # pass: Mitsuba seed; particles: the render seed
+    spp: int = 0       # pass: samples per pixel (its merge weight); chains: the render's spp;
+    #                    gathering: final-gathering passes (its merge weight)
+    seed: int = 0      # Mitsuba seed of the task's render; particles: the render seed
     start: int = 0     # particles: first path of the range
-    count: int = 0     # particles: paths in the range
+    count: int = 0     # particles: paths in the range; chains: chains of the group
 
     def describe(self, total):
         if self.kind == "pass":
             return "pass %d of %d (%d spp, seed %d)" % (self.index + 1, total, self.spp, self.seed)
-        return "particle range %d of %d (paths %d .. %d)" % (self.index + 1, total, self.start,
-                                                              self.start + self.count - 1)
+        if self.kind == "particles":
+            return "particle range %d of %d (paths %d .. %d)" % (self.index + 1, total, self.start,
+                                                                  self.start + self.count - 1)
+        if self.kind == "chains":
+            return "chain group %d of %d (%d chains, seed %d)" % (self.index + 1, total, self.count, self.seed)
+        return "gathering %d of %d (%d passes, seed %d)" % (self.index + 1, total, self.spp, self.seed)
 
 
 def pass_tasks(spp, tasks, seed):
@@ -57,6 +67,29 @@ def particle_tasks(samples, tasks, seed):
             for k, (s, n) in enumerate(zip(starts, sizes))]
 
 
+def chain_tasks(chains, spp, tasks, seed):
+    """``chains`` chains in at most ``tasks`` groups, each with its own render seed."""
+    from mi_plugins import seeds
+    return [Task("chains", k, spp=int(spp), seed=seeds.stream(seed, "tasks", k), count=n)
+            for k, n in enumerate(split_spp(chains, tasks))]
+
+
+def gathering_tasks(passes, tasks, seed):
+    """``passes`` final-gathering passes in at most ``tasks`` groups (seeds as passes)."""
+    parts = split_spp(passes, tasks)
+    check_seed(seed, len(parts))
+    return [Task("gathering", k, spp=n, seed=int(seed) * SEED_STRIDE + k) for k, n in enumerate(parts)]
+
+
+def merge_sums(results, tasks):
+    """Element-wise sum, in task order, of the tasks' tuples of arrays."""
+    total = None
+    for task in tasks:
+        part = results[task.index]
+        total = part if total is None else tuple(a + b for a, b in zip(total, part))
+    return total
+
+
 def merge_passes(results, tasks):
     """The sample-weighted mean of the finished passes ``results`` (index -> float64
     image), folded in pass order as :func:`mi_plugins.passes.render_in_passes` does;
@@ -72,10 +105,7 @@ def merge_passes(results, tasks):
 
 def merge_particles(results, tasks):
     """Sum of the ranges' deposits in range order."""
-    total = None
-    for task in tasks:
-        total = results[task.index] if total is None else total + results[task.index]
-    return total
+    return merge_sums({k: (v,) for k, v in results.items()}, tasks)[0]
 
 
 # ---------------------------------------------------------------------------- worker side
@@ -125,6 +155,26 @@ def _portable(error):
         return fresh
     except Exception:
         return RuntimeError("%s: %s" % (type(cause).__name__, cause))
+
+
+def run_chains(shipped, params, task, threads=None):
+    """ray_bundle: the average sums and counts of one group of chains."""
+    from mi_plugins.integrators.ray_bundle.split import run_chains as chains
+    scene = _scene(shipped, params, threads)
+    try:
+        return chains(scene.integrator(), scene, task.seed, task.spp, task.count)
+    except Exception as error:
+        raise _portable(error) from None
+
+
+def run_gathering(shipped, params, task, threads=None, average=None):
+    """ray_bundle: the image of one group of final-gathering passes from ``average``."""
+    from mi_plugins.integrators.ray_bundle.split import run_gathering as gathering
+    scene = _scene(shipped, params, threads)
+    try:
+        return gathering(scene.integrator(), scene, average[0], average[1], task.spp, task.seed)
+    except Exception as error:
+        raise _portable(error) from None
 
 
 def run_particles(shipped, params, task, threads=None):

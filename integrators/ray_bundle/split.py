@@ -1,0 +1,65 @@
+"""One ``ray_bundle`` render split across tasks (used by :mod:`mi_plugins.distributed`).
+
+With ``average_diffuse`` in a scene whose surfaces are all purely diffuse, the image is
+made only by the final gathering, from the per-patch averages over all chains and
+averaged iterations. Such a render splits into
+
+1. *chain tasks*: each runs its own chains (``chains``, its own seed) through all the
+   iterations and returns its averages' sums and counts per patch (:func:`run_chains`);
+   summed over the tasks they are the averages of all chains, as in one render whose
+   chains were grouped (each group with its own stratified direction sets);
+2. *gathering tasks*: each renders ``passes`` final-gathering passes from the summed
+   averages, with fresh stratified gather directions (:func:`run_gathering`); the image is
+   their pass-weighted mean.
+
+The total work equals one render's: every chain runs its burn-in once. Other renders
+(non-diffuse surfaces, no ``average_diffuse``) split into independent passes instead.
+"""
+from dataclasses import dataclass
+
+import mitsuba as mi
+import numpy as np
+
+
+@dataclass
+class Split:
+    """What the next render of the integrator does: ``mode`` 'chains' (iterations of
+    ``chains`` chains, no image; ``result`` = (sums, counts)) or 'gather' (``passes``
+    final-gathering passes from ``average`` = (sums, counts), no iterations)."""
+    mode: str
+    chains: int = 0
+    passes: int = 0
+    average: tuple = None
+    result: tuple = None
+
+
+def splits_by_chains(integ, scene):
+    """True when ``integ``'s render of ``scene`` is all final gathering from averages."""
+    diffuse = int(mi.BSDFFlags.DiffuseReflection)
+    return bool(integ.average_diffuse) and all(
+        s.bsdf() is not None and (int(s.bsdf().flags()) & int(mi.BSDFFlags.All)) == diffuse for s in scene.shapes())
+
+
+def final_passes(integ, spp):
+    """Final-gathering passes of a whole render with ``spp``: one per averaged iteration."""
+    return integ.iterations * int(spp) - integ.burn_in
+
+
+def run_chains(integ, scene, seed, spp, chains):
+    """Sums (K, 3) and counts (K,) of the diffuse averages of ``chains`` chains run for
+    ``integ.iterations * spp`` iterations with render seed ``seed``."""
+    integ.split = Split("chains", chains=int(chains))
+    try:
+        mi.render(scene, spp=int(spp), seed=int(seed))
+        return integ.split.result
+    finally:
+        integ.split = None
+
+
+def run_gathering(integ, scene, sums, counts, passes, seed):
+    """The image (float64) of ``passes`` final-gathering passes from the given averages."""
+    integ.split = Split("gather", passes=int(passes), average=(sums, counts))
+    try:
+        return np.array(mi.render(scene, spp=1, seed=int(seed)), dtype=np.float64)
+    finally:
+        integ.split = None
