@@ -20,7 +20,6 @@ import numpy as np
 
 from mi_plugins.distributed import plan
 from mi_plugins.distributed.scene_bundle import bundle
-from mi_plugins.integrators.ray_bundle.split import final_passes, splits_by_chains
 
 INSTALL = "distributed rendering needs Dask: pip install 'mi-plugins[distributed]' (dask[distributed])"
 
@@ -34,8 +33,7 @@ class DistributedResult:
     seconds: float
     interrupted: bool
     workers: int
-    particle_tasks: int = 0    # qmc_lighttrace: ranges of the particle phase
-    chain_tasks: int = 0       # ray_bundle: groups of chains (then ``tasks`` gathering tasks)
+    first_tasks: int = 0       # tasks of a first phase: qmc_lighttrace's particle ranges, ray_bundle's chain groups
 
 
 def require_dask():
@@ -91,54 +89,23 @@ def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, pro
 
 
 def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress, workers):
+    """The phases of :func:`mi_plugins.distributed.plan.phases` on ``client``: the first
+    (if any) merged and broadcast to every task of the image phase."""
     from mi_plugins.distributed.dask_engine import run_tasks
     t0 = time.perf_counter()
+    first, image_phase, spp_per_weight = plan.phases(scene.integrator(), scene, spp, tasks, seed)
     remote = client.scatter(shipped, broadcast=True, hash=False)   # own key: never a released twin
-    particles, n_particle = None, 0
-    if getattr(scene.integrator(), "plugin", None) == "qmc_lighttrace":
-        integ = scene.integrator()
-        if integ.epsilon is not None:
-            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
-                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
-                             % integ.epsilon)
-        ranges = plan.particle_tasks(integ.samples, tasks, seed)
-        n_particle = len(ranges)
-        found, stopped = run_tasks(client, plan.run_particles, ranges, ((remote, params), threads), progress,
-                                   "particles")
+    shared = None
+    if first is not None:
+        found, stopped = run_tasks(client, first.run, first.tasks, ((remote, params), threads), progress, first.name)
         if stopped:
-            raise KeyboardInterrupt
-        particles = client.scatter((plan.merge_particles(found, ranges), integ.samples), broadcast=True,
-                                   hash=False)
-    elif getattr(scene.integrator(), "plugin", None) == "ray_bundle" and splits_by_chains(scene.integrator(), scene):
-        return _ray_bundle(client, scene, remote, params, spp, seed, tasks, threads, progress, workers, t0)
-    passes = plan.pass_tasks(spp, tasks, seed)
-    found, stopped = run_tasks(client, plan.run_pass, passes, ((remote, params), threads, particles), progress,
-                               "passes")
-    image, spp_done = plan.merge_passes(found, passes)
+            raise KeyboardInterrupt          # nothing of the image is made yet
+        shared = client.scatter(first.merge(found, first.tasks), broadcast=True, hash=False)
+    found, stopped = run_tasks(client, image_phase.run, image_phase.tasks, ((remote, params), threads, shared),
+                               progress, image_phase.name)
+    image, weight = plan.merge_passes(found, image_phase.tasks)
     if image is None:
         size = scene.sensors()[0].film().crop_size()
         image = np.zeros((size[1], size[0], 3), dtype=np.float32)
-    return DistributedResult(image, spp_done, len(found), len(passes), time.perf_counter() - t0, stopped,
-                             workers, n_particle)
-
-
-def _ray_bundle(client, scene, remote, params, spp, seed, tasks, threads, progress, workers, t0):
-    """ray_bundle's chain tasks, their averages summed, then the gathering tasks."""
-    from mi_plugins.distributed.dask_engine import run_tasks
-    from mi_plugins.integrators.ray_bundle.integrator import DEFAULT_CHAINS
-    integ = scene.integrator()
-    groups = plan.chain_tasks(integ.chains or DEFAULT_CHAINS, spp, tasks, seed)
-    found, stopped = run_tasks(client, plan.run_chains, groups, ((remote, params), threads), progress, "chains")
-    if stopped:
-        raise KeyboardInterrupt
-    average = client.scatter(plan.merge_sums(found, groups), broadcast=True, hash=False)
-    total = final_passes(integ, spp)
-    gathers = plan.gathering_tasks(total, tasks, seed)
-    found, stopped = run_tasks(client, plan.run_gathering, gathers, ((remote, params), threads, average), progress,
-                               "gathering")
-    image, passes_done = plan.merge_passes(found, gathers)
-    if image is None:
-        size = scene.sensors()[0].film().crop_size()
-        image = np.zeros((size[1], size[0], 3), dtype=np.float32)
-    return DistributedResult(image, spp * passes_done // max(total, 1), len(found), len(gathers),
-                             time.perf_counter() - t0, stopped, workers, 0, len(groups))
+    return DistributedResult(image, int(round(weight * spp_per_weight)), len(found), len(image_phase.tasks),
+                             time.perf_counter() - t0, stopped, workers, len(first.tasks) if first else 0)

@@ -25,6 +25,11 @@ import numpy as np
 
 from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
 
+#: fewest chains of a ray_bundle chain group: a group runs every iteration's kernels, so
+#: small groups repeat their launch and tracing cost (measured at 128 px: 16 groups of 4
+#: chains took 2x one process's time on the same 2 cores)
+MIN_CHAINS = 16
+
 #: tasks of a render when not given: fixed, so that the image does not depend on the
 #: number of workers (16 tasks keep up to 16 workers busy; more tasks, more overhead)
 DEFAULT_TASKS = 16
@@ -49,6 +54,41 @@ class Task:
         if self.kind == "chains":
             return "chain group %d of %d (%d chains, seed %d)" % (self.index + 1, total, self.count, self.seed)
         return "gathering %d of %d (%d passes, seed %d)" % (self.index + 1, total, self.spp, self.seed)
+
+
+@dataclass
+class Phase:
+    """One phase of a render: its ``tasks``, the worker function ``run`` (shipped scene,
+    parameters, task, Dr.Jit threads[, the previous phase's merged result]) and, for a
+    first phase, ``merge(results, tasks)``: what every task of the next phase receives."""
+    name: str
+    tasks: list
+    run: object
+    merge: object = None
+
+
+def phases(integrator, scene, spp, tasks, seed):
+    """The phases of a render of ``scene`` with ``spp`` samples in ``tasks`` tasks:
+    (first phase or None, image phase, spp per unit of the image phase's merge weight)."""
+    from mi_plugins.integrators.ray_bundle.split import final_passes, splits_by_chains
+    kind = getattr(integrator, "plugin", None)
+    if kind == "qmc_lighttrace":
+        if integrator.epsilon is not None:
+            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
+                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
+                             % integrator.epsilon)
+        paths = integrator.samples
+        first = Phase("particles", particle_tasks(paths, tasks, seed), run_particles,
+                      lambda results, ranges: (merge_particles(results, ranges), paths))
+        return first, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
+    if kind == "ray_bundle" and splits_by_chains(integrator, scene):
+        from mi_plugins.integrators.ray_bundle.integrator import DEFAULT_CHAINS
+        chains = integrator.chains or DEFAULT_CHAINS
+        groups = min(tasks, max(1, chains // MIN_CHAINS))
+        first = Phase("chains", chain_tasks(chains, spp, groups, seed), run_chains, merge_chains)
+        total = final_passes(integrator, spp)
+        return first, Phase("gathering", gathering_tasks(total, tasks, seed), run_gathering), spp / max(total, 1)
+    return None, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
 
 
 def pass_tasks(spp, tasks, seed):
@@ -104,8 +144,14 @@ def merge_passes(results, tasks):
 
 
 def merge_particles(results, tasks):
-    """Sum of the ranges' deposits in range order."""
-    return merge_sums({k: (v,) for k, v in results.items()}, tasks)[0]
+    """Sum of the ranges' deposits in range order (results: (deposits, shape order))."""
+    return merge_sums({k: (v,) for k, v in check_order(results, tasks).items()}, tasks)[0]
+
+
+def merge_chains(results, tasks):
+    """Sums and counts of the chain groups added in task order (results: ((sums, counts),
+    shape order))."""
+    return merge_sums(check_order(results, tasks), tasks)
 
 
 # ---------------------------------------------------------------------------- worker side
@@ -124,8 +170,31 @@ def _scene(shipped, params, threads):
     key = (shipped.digest, tuple(sorted(params.items())))
     if key not in _LOADED:
         _LOADED.clear()                  # one scene per worker at a time: bounded memory
-        _LOADED[key] = mi.load_file(materialize(shipped), **params)
+        # sequential loading: the shapes, hence the patches, in the file's order on every
+        # worker (a parallel load may order them differently, and the first phase's
+        # per-patch sums would then be added across different patches)
+        _LOADED[key] = mi.load_file(materialize(shipped), parallel=False, **params)
     return _LOADED[key]
+
+
+def shape_order(scene):
+    """A fingerprint of the order of ``scene``'s shapes (ids, primitive counts, bounds)."""
+    import hashlib
+    h = hashlib.sha1()
+    for shape in scene.shapes():
+        box = shape.bbox()
+        h.update(repr((shape.id(), shape.primitive_count(), list(box.min), list(box.max))).encode())
+    return h.hexdigest()[:16]
+
+
+def check_order(results, tasks):
+    """The first phase's results without their fingerprints; ValueError when workers
+    numbered the patches differently."""
+    orders = {results[t.index][1] for t in tasks}
+    if len(orders) > 1:
+        raise ValueError("distributed render: the workers loaded the scene's shapes in different orders (%d "
+                         "orders); the per-patch sums cannot be added" % len(orders))
+    return {t.index: results[t.index][0] for t in tasks}
 
 
 def run_pass(shipped, params, task, threads=None, particles=None):
@@ -162,7 +231,7 @@ def run_chains(shipped, params, task, threads=None):
     from mi_plugins.integrators.ray_bundle.split import run_chains as chains
     scene = _scene(shipped, params, threads)
     try:
-        return chains(scene.integrator(), scene, task.seed, task.spp, task.count)
+        return chains(scene.integrator(), scene, task.seed, task.spp, task.count), shape_order(scene)
     except Exception as error:
         raise _portable(error) from None
 
@@ -182,4 +251,5 @@ def run_particles(shipped, params, task, threads=None):
     from mi_plugins.integrators.qmc_particles import trace_range
     scene = _scene(shipped, params, threads)
     integrator = scene.integrator()
-    return trace_range(integrator, scene, integrator.patch_table(scene), task.start, task.count, task.seed)[0]
+    return (trace_range(integrator, scene, integrator.patch_table(scene), task.start, task.count, task.seed)[0],
+            shape_order(scene))
