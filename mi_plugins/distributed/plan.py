@@ -170,20 +170,25 @@ def _scene(shipped, params, threads):
     key = (shipped.digest, tuple(sorted(params.items())))
     if key not in _LOADED:
         _LOADED.clear()                  # one scene per worker at a time: bounded memory
-        # sequential loading: the shapes, hence the patches, in the file's order on every
-        # worker (a parallel load may order them differently, and the first phase's
+        # the shapes, hence the patches, in the file's order on every worker: sequential
+        # loading, and no merging of meshes that share a BSDF (Mitsuba's optimisation
+        # merges them in an order that differs from load to load; the first phase's
         # per-patch sums would then be added across different patches)
-        _LOADED[key] = mi.load_file(materialize(shipped), parallel=False, **params)
+        _LOADED[key] = mi.load_file(materialize(shipped), parallel=False, optimize=False, **params)
     return _LOADED[key]
 
 
 def shape_order(scene):
-    """A fingerprint of the order of ``scene``'s shapes (ids, primitive counts, bounds)."""
+    """A fingerprint of ``scene``'s shapes in order: ids, primitive counts, bounds, and a
+    mesh's vertex and face buffers (their order numbers the patches)."""
     import hashlib
     h = hashlib.sha1()
     for shape in scene.shapes():
         box = shape.bbox()
         h.update(repr((shape.id(), shape.primitive_count(), list(box.min), list(box.max))).encode())
+        if hasattr(shape, "faces_buffer"):
+            h.update(np.array(shape.vertex_positions_buffer()).tobytes())
+            h.update(np.array(shape.faces_buffer()).tobytes())
     return h.hexdigest()[:16]
 
 
