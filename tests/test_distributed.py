@@ -64,19 +64,19 @@ def scenes(tmp_path_factory):
 
 @pytest.mark.parametrize("name", sorted(INTEGRATORS))
 def test_the_image_does_not_depend_on_the_number_of_workers(name, clients, scenes):
-    """1, 2 and 3 workers, the same seed and tasks: the same image, bit for bit for
-    `path` and `qmc_lighttrace` (their renders are deterministic); `stochastic_ray` and
-    `ray_bundle` sum floats with atomics inside a render, so their tasks differ in the
-    last bits (`ray_bundle` measured 9e-8 absolute, 1.8e-7 relative between 1 and 2
-    workers; the test allows 1e-4). Every image is the exact 0.5 of Keller's cube to its
-    noise."""
+    """1, 2 and 3 workers, the same seed and tasks: the same image up to the order of
+    float additions. Every task computes the same numbers whichever worker runs it, but
+    the film's splats are atomic float adds whose order follows the thread schedule (1
+    worker runs 2 Dr.Jit threads, 2 workers 1 each): `path` and `qmc_lighttrace` (exact
+    integer particle sums) differ only there, allowed 1e-5 relative; `stochastic_ray` and
+    `ray_bundle` also add floats with atomics inside a render (`ray_bundle` measured 9e-8
+    absolute, 1.8e-7 relative between 1 and 2 workers), allowed 1e-4. Every image is
+    the exact 0.5 of Keller's cube to its noise."""
     images = [distributed.render(scenes[name], 4, client=clients[n], seed=5, tasks=4, progress=False).image
               for n in (1, 2, 3)]
     for image in images[1:]:
-        if name in ("path", "qmc_lighttrace"):
-            assert np.array_equal(image, images[0])
-        else:
-            np.testing.assert_allclose(image, images[0], rtol=1e-4, atol=1e-6)
+        tolerance = 1e-5 if name in ("path", "qmc_lighttrace") else 1e-4
+        np.testing.assert_allclose(image, images[0], rtol=tolerance, atol=1e-7)
     assert abs(images[0].mean() - 0.5) < 0.01, images[0].mean()
 
 
@@ -84,15 +84,13 @@ def test_the_image_does_not_depend_on_the_number_of_workers(name, clients, scene
 def test_several_shapes_keep_their_patches_on_every_worker(name, clients, tmp_path):
     """The Bekaert box (two meshes, L = 1): the first phase's per-patch sums come from
     workers that loaded the scene separately; they number the patches alike (sequential
-    loading), so 1 and 2 workers agree (bit for bit for qmc_lighttrace) and the image is
-    exact. Test of the test: results carrying two shape orders are refused."""
+    loading), so 1 and 2 workers agree (up to the film's float splats for
+    qmc_lighttrace) and the image is exact. Test of the test: results carrying two shape orders are refused."""
     path = scene_copy(str(tmp_path), INTEGRATORS[name], source=os.path.join(REPO, "configs", "bekaert_box.xml"))
     one, two = (distributed.render(path, 2, client=clients[n], seed=3, tasks=4, progress=False).image
                 for n in (1, 2))
-    if name == "qmc_lighttrace":
-        assert np.array_equal(one, two)
-    else:
-        np.testing.assert_allclose(one, two, rtol=1e-4, atol=1e-6)
+    # patches mixed up between workers moved the mean by 0.6 % (before sequential loading)
+    np.testing.assert_allclose(one, two, rtol=1e-5 if name == "qmc_lighttrace" else 1e-4, atol=1e-7)
     assert abs(one.mean() - 1.0) < 0.03, one.mean()
     tasks = plan.particle_tasks(10, 2, 0)
     with pytest.raises(ValueError, match="different orders"):
