@@ -136,19 +136,8 @@ def _render_distributed(args, integrator, spp, defines):
         raise ValueError("--workers %d: valid range: 1 or more" % args.workers)
     if args.tasks is not None and args.tasks < 1:
         raise ValueError("--tasks %d: valid range: 1 or more" % args.tasks)
-    distributed.require_dask()
-    if args.scheduler is not None:
-        from distributed import Client
-        client = Client(args.scheduler)
-    else:
-        client = distributed.local_cluster(args.workers)
-    try:
+    with distributed.connect(args.workers, args.scheduler) as client:
         result = distributed.render(args.scene, spp, client=client, seed=args.seed, params=defines, tasks=args.tasks)
-    finally:
-        cluster = client.cluster if args.scheduler is None else None
-        client.close()
-        if cluster is not None:
-            cluster.close()
     meta = {"integrator": integrator, "spp": str(result.spp_done), "seed": str(args.seed),
             "seconds": "%.3f" % result.seconds, "passes": "%d/%d" % (result.tasks_done, result.tasks),
             "workers": str(result.workers), "scene": os.path.abspath(args.scene)}

@@ -19,11 +19,15 @@ from mi_plugins import seeds
 from mi_plugins.sampling import direct_light
 
 
+def diffuse_only(shape):
+    """True when ``shape`` has a BSDF with only diffuse reflection."""
+    bsdf = shape.bsdf()
+    return bsdf is not None and (int(bsdf.flags()) & int(mi.BSDFFlags.All)) == int(mi.BSDFFlags.DiffuseReflection)
+
+
 def purely_diffuse(table):
     """numpy bool per patch of ``table``: its shape's BSDF has only diffuse reflection."""
-    flags = np.array([shape.bsdf().flags() if shape.bsdf() is not None else 0 for shape in table.meshes],
-                     dtype=np.int64)
-    return ((flags & int(mi.BSDFFlags.All)) == int(mi.BSDFFlags.DiffuseReflection))[table.shape_index_np]
+    return np.array([diffuse_only(shape) for shape in table.meshes], dtype=bool)[table.shape_index_np]
 
 
 def direct_light_mis(scene, si, bsdf, rng, active):

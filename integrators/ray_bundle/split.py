@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.integrators.ray_bundle.direct import diffuse_only
+
 
 @dataclass
 class Split:
@@ -35,9 +37,7 @@ class Split:
 
 def splits_by_chains(integ, scene):
     """True when ``integ``'s render of ``scene`` is all final gathering from averages."""
-    diffuse = int(mi.BSDFFlags.DiffuseReflection)
-    return bool(integ.average_diffuse) and all(
-        s.bsdf() is not None and (int(s.bsdf().flags()) & int(mi.BSDFFlags.All)) == diffuse for s in scene.shapes())
+    return bool(integ.average_diffuse) and all(diffuse_only(shape) for shape in scene.shapes())
 
 
 def final_passes(integ, spp):

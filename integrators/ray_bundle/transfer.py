@@ -40,6 +40,11 @@ def available_memory():
         return None
 
 
+def chains_that_fit(available, sides, patches):
+    """How many chains of ``patches`` patches on ``sides`` sides fit ``available`` bytes."""
+    return int(available // (BYTES_PER_LANE * sides * patches))
+
+
 class ChainLayout:
     """Lanes of ``chains`` chains of ``table``'s patches, on ``sides`` sides."""
 
@@ -54,7 +59,7 @@ class ChainLayout:
         ``available`` bytes (None: not known, ``chains``)."""
         if available is None:
             return int(chains)
-        return int(max(1, min(chains, available // (4 * BYTES_PER_LANE * sides * table.count))))
+        return max(1, min(int(chains), chains_that_fit(available / 4, sides, table.count)))
 
     def check_memory(self, available):
         """Refuse a layout whose iterations would need more than ``available`` bytes
@@ -62,7 +67,7 @@ class ChainLayout:
         need = self.lanes * BYTES_PER_LANE
         if available is None or need <= available / 4:
             return
-        fit = int(available // (BYTES_PER_LANE * self.sides * self.count))
+        fit = chains_that_fit(available, self.sides, self.count)
         refuse = need > available
         text = ("ray_bundle: chains=%d x %d patch sides (%d patches) = %.3g M lanes need about %.1f GB per "
                 "iteration, %s the %.1f GB available" % (self.chains, self.sides * self.count, self.count,

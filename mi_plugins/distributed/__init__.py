@@ -14,6 +14,7 @@ path must be on a filesystem every worker sees. Dask is an optional dependency:
 """
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,23 @@ def local_cluster(workers, threads=None):
     return client
 
 
+@contextmanager
+def connect(workers=None, scheduler=None):
+    """A client of the Dask cluster at ``scheduler`` (an address), or else of a new
+    :func:`local_cluster` of ``workers`` processes (default: one per core); closed on exit,
+    with the local cluster."""
+    require_dask()
+    from distributed import Client
+    client = Client(scheduler) if scheduler is not None else local_cluster(workers or os.cpu_count() or 1)
+    try:
+        yield client
+    finally:
+        cluster = client.cluster if scheduler is None else None
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, progress=True):
     """Render ``scene_file`` with ``spp`` samples per pixel in ``tasks`` tasks (default
     ``plan.DEFAULT_TASKS``; fixed, so the image does not depend on the workers) on
@@ -74,18 +92,15 @@ def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, pro
     if scene.integrator() is None:
         raise ValueError("scene '%s' has no integrator" % scene_file)
     shipped = bundle(scene_file, params)
-    own = client is None
-    if own:
-        client = local_cluster(os.cpu_count() or 1)
-    try:
+
+    def on(client):
         workers = max(len(client.scheduler_info().get("workers", {})), 1)
         threads = getattr(client, "mi_plugins_threads", None)    # None: Dr.Jit's default on each worker
         return _render(client, scene, shipped, params, int(spp), int(seed), tasks, threads, progress, workers)
-    finally:
-        if own:
-            cluster = client.cluster
-            client.close()
-            cluster.close()
+    if client is not None:
+        return on(client)
+    with connect() as own:
+        return on(own)
 
 
 def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress, workers):
