@@ -8,7 +8,10 @@ PLUGINS = {
     "halton": "halton:HaltonSampler",
     "sobol": "sobol:SobolSampler",
     "faure": "faure:FaureSampler",
+    "padded_sobol": "padded_sobol:PaddedSobolSampler",
+    "zsobol": "zsobol:ZSobolSampler",
+    "lattice": "lattice:LatticeSampler",
 }
 
 #: modules holding base classes of the plugins above (reloaded first on a variant switch)
-BASES = ["sequence_sampler"]
+BASES = ["sequence_sampler", "padded_sobol"]

@@ -1,4 +1,5 @@
-"""Base class of the low-discrepancy samplers (``halton``, ``sobol``, ``faure``).
+"""Base class of the package's samplers (``halton``, ``sobol``, ``faure``; the padded
+``padded_sobol``, ``zsobol`` and ``lattice`` build on it in ``padded_sobol.py``).
 
 Mitsuba's protocol: ``sample_count()`` = N samples per pixel in total,
 ``set_samples_per_wavefront(k)`` (k per pixel per pass; N when not called),
@@ -32,30 +33,35 @@ from mi_plugins import qmc
 from mi_plugins.params import Params
 
 
+_SCRAMBLE_ROW = """
+     * - scramble
+       - bool
+       - true
+       - each pixel's points randomised with its own seed by %s; ``false``:
+         the same unrandomised points in every pixel (deterministic; for studies)"""
+
+
 def reference(name, title, scramble, note=""):
     """The class docstring (plugin reference) of the sampler ``name``: the parameters are
-    the same for the three samplers, the scramble and the note are the sequence's own."""
+    the same for every sampler of the package, the scramble and the note are the
+    sampler's own (``scramble=None``: always randomised, no ``scramble`` parameter)."""
     return """
     .. _sampler-%(name)s:
 
     ``%(name)s`` (%(title)s)
     %(rule)s
 
-    A low-discrepancy sampler for every Mitsuba integrator (Mitsuba 3 ships none): use it
-    as the sensor's sampler with ``path``, ``volpath``, ``ptracer``, ``prb`` or this
-    package's integrators (protocol and randomisation: see the samplers section below).%(note)s
+    A low-discrepancy sampler for every Mitsuba integrator (Mitsuba 3.9.1 has no Halton,
+    Sobol or lattice sampler): use it as the sensor's sampler with ``path``, ``volpath``,
+    ``ptracer``, ``prb`` or this package's integrators (protocol, randomisation and which
+    sampler to choose: see the samplers section below).%(note)s
 
     .. pluginparameters::
 
      * - sample_count
        - int
        - 4
-       - 1 .. 2^32 - 1 samples per pixel (``mi.render(spp=...)`` overrides it)
-     * - scramble
-       - bool
-       - true
-       - each pixel's points randomised with its own seed by %(scramble)s; ``false``:
-         the same unrandomised points in every pixel (deterministic; for studies)
+       - 1 .. 2^32 - 1 samples per pixel (``mi.render(spp=...)`` overrides it)%(scramble)s
      * - seed
        - int
        - 0
@@ -66,7 +72,8 @@ def reference(name, title, scramble, note=""):
     .. code-block:: xml
 
         <sampler type="%(name)s"><integer name="sample_count" value="64"/></sampler>
-    """ % dict(name=name, title=title, rule="-" * (len(name) + len(title) + 7), scramble=scramble,
+    """ % dict(name=name, title=title, rule="-" * (len(name) + len(title) + 7),
+               scramble=_SCRAMBLE_ROW % scramble if scramble else "",
                note=(" " + note) if note else "")
 
 
@@ -74,13 +81,17 @@ class SequenceSampler(mi.Sampler):
     #: sequence name (set by subclasses) and the dimensions its tables cover
     sequence = None
     max_dim = 0
+    #: the plugin name (the sequence's unless a subclass says otherwise)
+    plugin = None
+    #: whether the plugin has the ``scramble`` parameter (otherwise always randomised)
+    has_scramble = True
 
     def __init__(self, props):
         # read before the base class, which reads sample_count and seed with its own checks
-        p = Params(props, self.sequence)
+        p = Params(props, self.name())
         p.int("sample_count", 4, lo=1, hi=0xFFFFFFFF)
         sampler_seed = p.int("seed", 0, lo=0, hi=0xFFFFFFFF)
-        scramble = p.bool("scramble", True)
+        scramble = p.bool("scramble", True) if self.has_scramble else True
         super().__init__(props)
         self.scramble, self.sampler_seed = scramble, sampler_seed
         self.next_per_pixel = None        # set_samples_per_wavefront(k) for the next seed()
@@ -88,11 +99,16 @@ class SequenceSampler(mi.Sampler):
         self.base_seed = self.sample_index = self.pixel = self.dimension = mi.UInt32(0)
         self.wavefront = 1
 
+    @classmethod
+    def name(cls):
+        return cls.plugin or cls.sequence
+
     def _properties(self):
         """Fresh Properties with this sampler's parameters (the constructor's are temporary)."""
-        props = mi.Properties(self.sequence)
+        props = mi.Properties(self.name())
         props["sample_count"] = int(self.sample_count())
-        props["scramble"] = bool(self.scramble)
+        if self.has_scramble:
+            props["scramble"] = bool(self.scramble)
         props["seed"] = int(self.sampler_seed)
         return props
 
@@ -125,7 +141,7 @@ class SequenceSampler(mi.Sampler):
         if not self.per_pixel_told and self.passes == 0:
             mi.Log(mi.LogLevel.Warn, "%s: advance() after a seed() without set_samples_per_wavefront(): "
                    "each pass is taken as %d samples per pixel (a Python sampler cannot see the samples per "
-                   "pass of Mitsuba's C++ renderer)" % (self.sequence, self.per_pixel))
+                   "pass of Mitsuba's C++ renderer)" % (self.name(), self.per_pixel))
         self.passes += 1
         self._set_sample_index()
         self.dimension = dr.zeros(mi.UInt32, self.wavefront)
@@ -168,5 +184,5 @@ class SequenceSampler(mi.Sampler):
         return mi.Point2f(x, y)
 
     def to_string(self):
-        return "%sSampler[sample_count=%d, scramble=%s, seed=%d]" % (self.sequence.capitalize(), self.sample_count(),
-                                                                    self.scramble, self.sampler_seed)
+        return "%s[sample_count=%d, scramble=%s, seed=%d]" % (type(self).__name__, self.sample_count(),
+                                                             self.scramble, self.sampler_seed)
