@@ -5,7 +5,7 @@ To add an integrator, add an :class:`IntegratorSpec` to ``INTEGRATORS``.
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from . import classic, constant_radiance, harness
 
@@ -85,6 +85,8 @@ RAY_BUNDLE_GLOSSY = ("narrow glossy lobe (roughconductor alpha 0.3): random pair
                      "never sample the lobe, the estimate is dominated by rare spikes (measured 0.47 +- 0.17, "
                      "RMSE 1.3); use stochastic_ray or path")
 
+#: this package's samplers, each with `path` in the matrix
+PACKAGE_SAMPLERS = ("sobol", "halton", "faure", "padded_sobol", "zsobol", "lattice")
 #: Mitsuba 3.9.1's samplers; the first is the default (the rows without "+sampler")
 MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 #: Mitsuba 3.9.1 finding (README, "Findings"): samplers whose dimensions are coupled
@@ -117,20 +119,8 @@ INTEGRATORS = {
     "path": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, known_failures=dict(_SPHERE_NEE)),
     "ptracer": IntegratorSpec({"type": "ptracer"}, spp=128, quick_spp=32),
     "volpath": IntegratorSpec({"type": "volpath"}, spp=32, quick_spp=8, known_failures=dict(_SPHERE_NEE)),
-    # Mitsuba's integrators driven by this package's low-discrepancy samplers
-    "path+sobol": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "sobol"},
-                                 known_failures=dict(_SPHERE_NEE)),
-    "path+halton": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "halton"},
-                                  known_failures=dict(_SPHERE_NEE)),
-    "path+faure": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "faure"},
-                                 known_failures=dict(_SPHERE_NEE)),
+    # Mitsuba's integrators with other samplers: see _sampler_rows below
     "ptracer+sobol": IntegratorSpec({"type": "ptracer"}, spp=128, quick_spp=32, sampler={"type": "sobol"}),
-    "path+padded_sobol": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "padded_sobol"},
-                                        known_failures=dict(_SPHERE_NEE)),
-    "path+zsobol": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "zsobol"},
-                                  known_failures=dict(_SPHERE_NEE)),
-    "path+lattice": IntegratorSpec({"type": "path"}, spp=32, quick_spp=8, sampler={"type": "lattice"},
-                                   known_failures=dict(_SPHERE_NEE)),
     "prb": IntegratorSpec({"type": "prb", "max_depth": -1}, spp=32, quick_spp=8, known_failures=dict(_SPHERE_NEE)),
     # Keller's method with his M = 29: the image holds paths of up to M + 3 = 32 segments, so
     # against the untruncated value it misses < 0.7^32 / 0.3 * Le_max < 1e-4 for the matrix
@@ -169,19 +159,18 @@ INTEGRATORS = {
 }
 
 
-def _mitsuba_sampler_rows():
-    """Mitsuba's own samplers with Mitsuba's integrators (``path+stratified``, ...): the
-    integrator's budget, the sampler rounding its sample count as it does."""
-    rows = {}
+def _sampler_rows():
+    """`path` with each of this package's samplers (``path+sobol``, ...), and each of
+    Mitsuba's four integrators with each of Mitsuba's samplers (``path+stratified``, ...):
+    the integrator's budget, the sampler rounding its sample count as it does."""
+    rows = {"path+" + sampler: replace(INTEGRATORS["path"], sampler={"type": sampler}) for sampler in PACKAGE_SAMPLERS}
     for integrator in ("path", "volpath", "ptracer", "prb"):
         base = INTEGRATORS[integrator]
         for sampler in MITSUBA_SAMPLERS[1:]:
             findings = dict(base.known_failures)
             if sampler in DEPENDENT_SAMPLERS:
                 findings.update({case: SAMPLER_DEPENDENCE_FINDING % sampler for case in all_cases()})
-            rows["%s+%s" % (integrator, sampler)] = IntegratorSpec(
-                dict(base.integrator), spp=base.spp, quick_spp=base.quick_spp, sampler={"type": sampler},
-                known_failures=findings)
+            rows["%s+%s" % (integrator, sampler)] = replace(base, sampler={"type": sampler}, known_failures=findings)
     return rows
 
 
@@ -189,7 +178,7 @@ def all_cases():
     return {**classic.MATRIX_CASES, **constant_radiance.MATRIX_CASES}
 
 
-INTEGRATORS.update(_mitsuba_sampler_rows())
+INTEGRATORS.update(_sampler_rows())
 
 
 def quick_cases():
