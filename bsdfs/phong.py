@@ -13,13 +13,18 @@ of ks at the point; the diffuse lobe is sampled cosine-weighted, the specular lo
 by cos^n around the mirror direction (pdf (n + 1)/(2 pi) cos^n alpha); directions
 below the surface are rejected (zero weight). ``pdf``/``eval_pdf`` return the
 matching mixture density, so MIS weights are consistent with ``sample``.
+
+Scene parameters: ``traverse`` exposes both reflectance textures and the exponent (a
+``mi.Float``, opaque in kernels); ``parameters_changed`` re-reads the edited values with
+the load-time reader (same checks, same messages) and re-checks kd + ks <= 1; an
+invalid edit raises and is undone.
 """
 import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.sampling import square_to_power_cosine_hemisphere
-from mi_plugins.params import Params
-from mi_plugins.textures import texture_sum_max
+from mi_plugins.params import ParameterError, Params
+from mi_plugins.textures import as_given, as_properties, restore, snapshot, texture_sum_max
 
 
 def _mirror_direction(wi):
@@ -46,19 +51,24 @@ class PhongBSDF(mi.BSDF):
      * - diffuse_reflectance
        - float, RGB or texture
        - 0.5
-       - kd >= 0
+       - kd >= 0; exposed, differentiable
      * - specular_reflectance
        - float, RGB or texture
        - 0.2
-       - ks >= 0, kd + ks <= 1 in every channel (checked)
+       - ks >= 0, kd + ks <= 1 in every channel (checked); exposed, differentiable
      * - exponent
        - float
        - 10
-       - n >= 0
+       - n >= 0; exposed, differentiable
 
     Lobe chosen by mean kd vs ks; the specular lobe sampled proportionally to cos^n
     around the mirror direction; ``pdf``/``eval_pdf`` consistent with ``sample``
     (chi-square tested at n = 0, 2, 10, 50).
+
+    Exposed parameters (``mi.traverse``): ``diffuse_reflectance.value`` and
+    ``specular_reflectance.value`` (or the keys of a texture given there), ``exponent`` (a
+    ``mi.Float``). An edit is checked like a value at load; an invalid one raises and is
+    undone.
 
     .. code-block:: python
 
@@ -74,17 +84,55 @@ class PhongBSDF(mi.BSDF):
     def __init__(self, props):
         super().__init__(props)
         p = Params(props, "phong")
-        self.kd = p.texture("diffuse_reflectance", 0.5, lo=0)
-        self.ks = p.texture("specular_reflectance", 0.2, lo=0)
-        self.exponent = p.float("exponent", 10.0, lo=0)
+        self.kd, self.ks, self.exponent = self._read(p)
+        self.m_exponent = mi.Float(self.exponent)
+        self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
+                             mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
+        self.m_flags = self.m_components[0] | self.m_components[1]
+        self._derive(p)
+
+    # ------------------------------------------------------------ parameters
+    @staticmethod
+    def _read(p):
+        """The parameters, read and checked by ``p``: at load and after every edit."""
+        return (p.texture("diffuse_reflectance", 0.5, lo=0), p.texture("specular_reflectance", 0.2, lo=0),
+                p.float("exponent", 10.0, lo=0))
+
+    def _derive(self, p):
+        """The rule between the parameters, and the kernels' view of them (one place for
+        load and update)."""
         total = texture_sum_max(self.kd, self.ks)
         if total > 1.0 + 1e-6:
             raise p.conflict(("diffuse_reflectance", "specular_reflectance"),
                              "diffuse_reflectance + specular_reflectance <= 1 in every channel for an "
                              "energy-conserving BSDF (the sum reaches %.4g)" % total)
-        self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
-                             mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
-        self.m_flags = self.m_components[0] | self.m_components[1]
+        dr.make_opaque(self.m_exponent)
+        self._valid = snapshot(self._exposed())
+
+    def _exposed(self):
+        return {"diffuse_reflectance": self.kd, "specular_reflectance": self.ks, "exponent": self.m_exponent}
+
+    def traverse(self, callback):
+        callback.put("diffuse_reflectance", self.kd, mi.ParamFlags.Differentiable)
+        callback.put("specular_reflectance", self.ks, mi.ParamFlags.Differentiable)
+        # a lobe-shape parameter, flagged like the roughness of Mitsuba's microfacet BSDFs
+        callback.put("exponent", self.m_exponent, mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
+
+    def parameters_changed(self, keys=()):
+        """Re-reads the edited values with the load-time reader: an invalid edit raises its
+        ParameterError and is undone (the last valid values are restored)."""
+        try:
+            self._update()
+        except ParameterError:
+            restore(self._exposed(), self._valid)
+            self._update()
+            raise
+
+    def _update(self):
+        given = {name: as_given(value) for name, value in self._exposed().items()}
+        p = Params(as_properties("phong", given), "phong")
+        self.exponent = self._read(p)[2]
+        self._derive(p)
 
     # ------------------------------------------------------------ helpers
     def _lobes(self, si, active):
@@ -97,7 +145,7 @@ class PhongBSDF(mi.BSDF):
         wi = si.wi
         active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
         kd, ks, p_diffuse = self._lobes(si, active)
-        n = self.exponent
+        n = self.m_exponent
         cos_alpha = dr.dot(_mirror_direction(wi), wo)
         cos_alpha_n = dr.select(cos_alpha > 0, dr.power(dr.maximum(cos_alpha, 0.0), n), 0.0)
         cos_o = mi.Frame3f.cos_theta(wo)
@@ -120,7 +168,7 @@ class PhongBSDF(mi.BSDF):
         _, _, p_diffuse = self._lobes(si, active)
         choose_diffuse = sample1 < p_diffuse
         wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
-        lobe_local = square_to_power_cosine_hemisphere(sample2, self.exponent)
+        lobe_local = square_to_power_cosine_hemisphere(sample2, self.m_exponent)
         wo_specular = mi.Frame3f(_mirror_direction(si.wi)).to_world(lobe_local)
         wo = dr.select(choose_diffuse, wo_diffuse, wo_specular)
         value, pdf = self._value_and_pdf(si, wo, active)
@@ -136,9 +184,6 @@ class PhongBSDF(mi.BSDF):
 
     def eval_diffuse_reflectance(self, si, active=True):
         return self.kd.eval(si, active)
-
-    def traverse(self, callback):
-        callback.put("exponent", self.exponent, mi.ParamFlags.NonDifferentiable)
 
     def to_string(self):
         return "PhongBSDF[diffuse_reflectance=%s, specular_reflectance=%s, exponent=%g]" % (

@@ -19,14 +19,19 @@ radiance, or no emission) cosine-weighted as in the paper. ``pdf`` matches ``sam
 Note on 'simulated': the paper's estimator puts a random quantity in the
 denominator, so its mean is not exactly eq. 9 (Jensen's inequality); the bias is
 O(Var/M) and is measured in the tests and the README.
+
+Scene parameters: ``traverse`` exposes ``target_radiance`` (an opaque ``mi.Color3f``);
+after an edit of it, or of the referenced emitter (which calls :meth:`emission_changed`),
+the rule L~ > max emission is re-checked with the load-time reader and the sampling
+table recomputed; an invalid edit raises and is undone.
 """
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from mi_plugins.sampling import IsotropicLobe, Salt, hashed_rng
-from mi_plugins.params import Params, parameter_error
-from mi_plugins.textures import texture_max
+from mi_plugins.params import ParameterError, Params, parameter_error
+from mi_plugins.textures import as_given, as_properties, restore, snapshot, texture_max
 
 NORMALIZATIONS = ("exact", "simulated")
 
@@ -47,7 +52,7 @@ class SeparableBSDF(mi.BSDF):
      * - target_radiance
        - float or RGB
        - required
-       - L~ > max emission of the surface (checked)
+       - L~ > max emission of the surface (checked); exposed, differentiable
      * - emission
        - reference
        - none
@@ -67,6 +72,10 @@ class SeparableBSDF(mi.BSDF):
     shape) an emitter that belongs to another shape; a ``directional_area`` emitter
     refuses a shape whose ``separable`` BSDF does not reference it.
 
+    Exposed parameters (``mi.traverse``): ``target_radiance`` (a ``mi.Color3f``); an edit
+    of it or of the emitter's parameters re-checks L~ > max emission (an invalid edit
+    raises and is undone).
+
     .. code-block:: python
 
         {'type': 'ply', 'filename': 'lamp.ply',
@@ -83,28 +92,70 @@ class SeparableBSDF(mi.BSDF):
 
     def __init__(self, props):
         super().__init__(props)
-        from mi_plugins.emitters.directional_area import DirectionalAreaEmitter  # the current variant's class
         p = Params(props, "separable")
-        self.target = p.rgb("target_radiance", lo=0, lo_open=True, required=True)
-        self.emission = p.reference("emission", DirectionalAreaEmitter,
-                                    "a reference to the 'directional_area' emitter of the shape this BSDF "
-                                    "sits on (<ref name=\"emission\" id=\"...\"/>)")
+        self.target, self.emission = self._read(p)
         self.normalization = p.choice("normalization", "exact", NORMALIZATIONS)
         self.samples = p.int("samples", 16, lo=1)
+        self.m_target = mi.Color3f(*[float(v) for v in self.target])
+        self._checked = False
+        self.salt = Salt()
+        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        if self.emission is not None:
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [flags]
+        self.m_flags = flags
+        self._derive(p)
+
+    # ------------------------------------------------------------ parameters
+    @staticmethod
+    def _read(p):
+        """(L~, emitter), read and checked by ``p``: at load and after every edit."""
+        from mi_plugins.emitters.directional_area import DirectionalAreaEmitter  # the current variant's class
+        target = p.rgb("target_radiance", lo=0, lo_open=True, required=True)
+        return target, p.reference("emission", DirectionalAreaEmitter,
+                                   "a reference to the 'directional_area' emitter of the shape this BSDF "
+                                   "sits on (<ref name=\"emission\" id=\"...\"/>)")
+
+    def _derive(self, p):
+        """The rule between L~ and the emission, and everything that depends on them (one
+        place for load and update): the kernels' opaque L~, the sampling table."""
         if self.emission is not None:
             max_emission = texture_max(self.emission.radiance_texture) * self._max_profile()
             if not np.all(self.target > max_emission):
                 raise p.conflict(("target_radiance", "emission"),
                                  "target_radiance must exceed the maximum emission %.6g of the surface in every "
                                  "channel (otherwise the BSDF would be negative)" % max_emission)
-        self._checked = False
-        self.salt = Salt()
+        dr.make_opaque(self.m_target)
         self._lobe = self._importance_lobe()
-        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        self._valid = snapshot({"target_radiance": self.m_target})
+
+    def traverse(self, callback):
+        callback.put("target_radiance", self.m_target, mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=()):
+        """Re-reads L~ with the load-time reader and re-checks the rule with the emission:
+        an invalid edit raises its ParameterError and is undone (L~ and the emitter's
+        parameters, which the rule involves, back to their last valid values)."""
+        try:
+            self._update()
+        except ParameterError:
+            restore({"target_radiance": self.m_target}, self._valid)
+            if self.emission is not None:
+                self.emission.undo(notify=False)
+            self._update()
+            raise
+
+    def emission_changed(self):
+        """Called by the referenced emitter after an edit of its parameters."""
+        self.parameters_changed(["emission"])
+
+    def _update(self):
+        given = {"target_radiance": as_given(self.m_target)}
         if self.emission is not None:
-            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-        self.m_components = [flags]
-        self.m_flags = flags
+            given["emission"] = self.emission
+        p = Params(as_properties("separable", given), "separable")
+        self.target = self._read(p)[0]
+        self._derive(p)
 
     def _importance_lobe(self):
         """Sampling density proportional to (L~ - Le(w')) cos (channel means) when the
@@ -135,9 +186,6 @@ class SeparableBSDF(mi.BSDF):
         self._checked = True
 
     # ------------------------------------------------------------ the formula
-    def _target(self):
-        return mi.Color3f(*[float(v) for v in self.target])
-
     def _emission(self, si, d):
         """Le(x, d) of the surface (Color3f; zero without emission)."""
         if self.emission is None:
@@ -146,11 +194,11 @@ class SeparableBSDF(mi.BSDF):
 
     def _denominator(self, si):
         """L~ * D, D = pi L~ - integral Le cos (exact or simulated)."""
-        target = self._target()
+        target = self.m_target
         if self.emission is None:
             return target * target * dr.pi
         if self.normalization == "exact":
-            integral = self.emission.radiance_texture.eval(si) * self.emission.hemispherical_integral()
+            integral = self.emission.radiance_texture.eval(si) * self.emission.hemispherical_integral_ad()
         else:
             rng = hashed_rng(si, self.salt.next())
             integral = dr.zeros(mi.Color3f, dr.width(si.p))
@@ -161,7 +209,7 @@ class SeparableBSDF(mi.BSDF):
         return target * (dr.pi * target - integral)
 
     def _f(self, si, wo):
-        target = self._target()
+        target = self.m_target
         return (target - self._emission(si, si.wi)) * (target - self._emission(si, wo)) / self._denominator(si)
 
     # ------------------------------------------------------------ BSDF interface

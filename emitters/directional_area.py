@@ -13,6 +13,11 @@ linear table for 'tabulated'; weights use the density actually sampled, so both 
 unbiased). :meth:`hemispherical_integral` returns the exact integral of
 profile * cos over the hemisphere, :meth:`total_power` the exact emitted power
 (radiance must be uniform; for textures it is estimated numerically).
+
+Scene parameters: ``traverse`` exposes the radiance texture and the profile's
+``exponent`` or table ``values`` (``mi.Float``, opaque in kernels); after an edit,
+``parameters_changed`` re-reads them with the load-time reader and recomputes the
+integral, the sampling table and the checks of a ``separable`` BSDF on the same shape.
 """
 import drjit as dr
 import mitsuba as mi
@@ -26,20 +31,27 @@ from mi_plugins.params import NOT_GIVEN, Params, parameter_error
 PROFILES = ("cosine_power", "tabulated")
 
 
+def tabulated_integral_weights(k):
+    """Weights w of the exact integral 2 pi * integral_0^{pi/2} p(theta) cos(theta) sin(theta)
+    dtheta = w . values for p piecewise linear in theta on a uniform grid of ``k`` values
+    (numpy float64; the integral is linear in the values)."""
+    t = np.linspace(0.0, np.pi / 2, k)
+    t0, t1, h = t[:-1], t[1:], t[1] - t[0]
+    # on a segment, p = a + b t with a = p0 (1 + t0/h) - p1 t0/h, b = (p1 - p0)/h, and
+    # integral of (a + b t) cos(t) sin(t) dt = a [-cos(2t)/4] + b [-t cos(2t)/4 + sin(2t)/8]
+    dc = (np.cos(2 * t0) - np.cos(2 * t1)) / 4
+    prim = lambda x: -x * np.cos(2 * x) / 4 + np.sin(2 * x) / 8
+    dd = prim(t1) - prim(t0)
+    w = np.zeros(k)
+    w[:-1] += (1 + t0 / h) * dc - dd / h
+    w[1:] += -t0 / h * dc + dd / h
+    return 2 * np.pi * w
+
+
 def tabulated_hemispherical_integral(values):
     """Exact 2 pi * integral_0^{pi/2} p(theta) cos(theta) sin(theta) dtheta for p piecewise
     linear in theta on a uniform grid."""
-    k = len(values) - 1
-    t = np.linspace(0.0, np.pi / 2, k + 1)
-    total = 0.0
-    for i in range(k):
-        t0, t1, p0, p1 = t[i], t[i + 1], values[i], values[i + 1]
-        b = (p1 - p0) / (t1 - t0)
-        a = p0 - b * t0
-        # integral of (a + b t) sin(2t)/2 dt = -a cos(2t)/4 + b (-t cos(2t)/4 + sin(2t)/8)
-        prim = lambda x: -a * np.cos(2 * x) / 4 + b * (-x * np.cos(2 * x) / 4 + np.sin(2 * x) / 8)
-        total += prim(t1) - prim(t0)
-    return 2 * np.pi * total
+    return float(tabulated_integral_weights(len(values)) @ np.asarray(values, dtype=np.float64))
 
 
 class DirectionalAreaEmitter(SurfaceEmitter):
@@ -57,7 +69,7 @@ class DirectionalAreaEmitter(SurfaceEmitter):
      * - radiance
        - float, RGB or texture
        - 1.0
-       - >= 0, spatial factor
+       - >= 0, spatial factor; exposed, differentiable
      * - profile
        - string
        - ``'cosine_power'``
@@ -65,17 +77,22 @@ class DirectionalAreaEmitter(SurfaceEmitter):
      * - exponent
        - float
        - 1.0
-       - n >= 0 of cos^n (0 = diffuse); only with ``'cosine_power'``
+       - n >= 0 of cos^n (0 = diffuse); only with ``'cosine_power'``; exposed, differentiable
      * - values
        - string of floats
        - required for ``'tabulated'``
        - >= 2 values >= 0, not all 0: profile at theta uniformly spaced over [0, pi/2],
-         linear in theta; only with ``'tabulated'``
+         linear in theta; only with ``'tabulated'``; exposed (a ``mi.Float`` table), differentiable
 
     Emission directions are importance sampled proportionally to profile x cos (exact
     for cos^n, a 2048-bin piecewise-linear table otherwise; chi-square tested).
     ``emitter.hemispherical_integral()`` is the exact integral of profile x cos,
     ``emitter.total_power()`` the exact power (uniform radiance; textures: numeric).
+
+    Exposed parameters (``mi.traverse``): ``radiance.value`` (or the keys of a texture),
+    ``exponent`` or ``values``; an edit is checked like a value at load (and against the
+    ``separable`` BSDF of the shape), the integral and the sampling tables are recomputed;
+    an invalid edit raises and is undone.
 
     .. code-block:: python
 
@@ -88,42 +105,102 @@ class DirectionalAreaEmitter(SurfaceEmitter):
             <float name="exponent" value="4"/><rgb name="radiance" value="0.8, 0.5, 0.3"/></emitter>
     """
 
+    plugin = "directional_area"
+
     def __init__(self, props):
         super().__init__(props)
-        p = Params(props, "directional_area")
-        self.radiance_texture = p.texture("radiance", 1.0, lo=0)
+        p = Params(props, self.plugin)
         self.profile = p.choice("profile", "cosine_power", PROFILES)
+        self.radiance_texture, self.exponent, self.values = self._read(p)
+        if self.profile == "cosine_power":
+            self.m_exponent = mi.Float(self.exponent)
+        else:
+            self.m_table = mi.Float(self.values)
+        self._derive()
+        self._keep_valid()
+
+    # ----------------------------------------------------------- parameters
+    def _read(self, p):
+        """(radiance, exponent, values), read and checked by ``p``: at load and after every
+        edit (the profile itself is fixed at load)."""
+        radiance = p.texture("radiance", 1.0, lo=0)
         exponent = p.float("exponent", 1.0, lo=0)
         values = p.floats("values", lo=0, min_count=2)
         if self.profile == "cosine_power":
             if values is not None:
                 raise p.conflict(("values", "profile"), "'values' only with profile='tabulated'")
-            self.exponent, self.values = exponent, None
+            return radiance, exponent, None
+        if p.given("exponent"):
+            raise p.conflict(("exponent", "profile"), "'exponent' only with profile='cosine_power'")
+        if values is None:
+            raise p.conflict(("values", "profile"), "profile='tabulated' needs 'values' (at least 2 profile "
+                             "samples >= 0 over theta in [0, pi/2], e.g. '1, 0.5, 0')")
+        if not np.any(values > 0):
+            raise p.error("values", "a string of at least 2 comma-separated finite numbers >= 0, not all 0 "
+                                    "(these values emit nothing)")
+        return radiance, None, values
+
+    def _derive(self):
+        """Everything that depends on the parameters (one place for load and update): the
+        kernels' opaque values, the integral of profile * cos (float64 and a differentiable
+        ``mi.Float``), the importance-sampling table of a tabulated profile."""
+        if self.profile == "cosine_power":
+            dr.make_opaque(self.m_exponent)
+            self._integral64 = 2 * np.pi / (self.exponent + 2)
+            self._integral = dr.two_pi / (self.m_exponent + 2)
         else:
-            if p.given("exponent"):
-                raise p.conflict(("exponent", "profile"), "'exponent' only with profile='cosine_power'")
-            if values is None:
-                raise p.conflict(("values", "profile"), "profile='tabulated' needs 'values' (at least 2 profile "
-                                 "samples >= 0 over theta in [0, pi/2], e.g. '1, 0.5, 0')")
-            if not np.any(values > 0):
-                raise p.error("values", "a string of at least 2 comma-separated finite numbers >= 0, not all 0 "
-                                        "(these values emit nothing)")
-            self.values = values
-            self._table = mi.Float(self.values)
+            dr.make_opaque(self.m_table)
+            weights = tabulated_integral_weights(len(self.values))
+            self._integral64 = float(weights @ self.values)
+            self._integral = dr.sum(mi.Float(weights) * self.m_table)
             # importance sampling proportional to profile * cos, tabulated in theta
             self._lobe = IsotropicLobe(self.profile_at_theta)
+        dr.make_opaque(self._integral)
+
+    def traverse(self, callback):
+        super().traverse(callback)
+        callback.put("radiance", self.radiance_texture, mi.ParamFlags.Differentiable)
+        # the profile shapes the emission lobe: flagged like a microfacet roughness in Mitsuba
+        lobe = mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous
+        if self.profile == "cosine_power":
+            callback.put("exponent", self.m_exponent, lobe)
+        else:
+            callback.put("values", self.m_table, lobe)
+
+    def _exposed(self):
+        exposed = {"radiance": self.radiance_texture}
+        if self.profile == "cosine_power":
+            exposed["exponent"] = self.m_exponent
+        else:
+            exposed["values"] = self.m_table
+        return exposed
+
+    def _apply(self, p, keys):
+        _, exponent, values = self._read(p)     # the edited texture object stays in place
+        if self.profile == "cosine_power":
+            self.exponent = exponent
+        elif not keys or "values" in keys:
+            self.values = values
+        self._derive()
+
+    def _notify(self):
+        """A ``separable`` BSDF on this shape depends on the emission: it re-checks its rule
+        and recomputes its sampling table (its own error, if any, is raised here)."""
+        shape = self.get_shape()
+        if shape is not None and getattr(shape.bsdf(), "emission", None) is self:
+            shape.bsdf().emission_changed()
 
     # ----------------------------------------------------------- the profile
     def profile_value(self, cos_theta):
         """profile(cos theta) (Float)."""
         if self.profile == "cosine_power":
-            return dr.power(dr.maximum(cos_theta, 0.0), self.exponent)
+            return dr.power(dr.maximum(cos_theta, 0.0), self.m_exponent)
         theta = dr.acos(dr.clip(cos_theta, 0.0, 1.0))
         pos = theta / (dr.pi / 2) * (len(self.values) - 1)
         i = mi.UInt32(dr.minimum(dr.floor(pos), len(self.values) - 2))
         f = pos - mi.Float(i)
-        v0 = dr.gather(mi.Float, self._table, i)
-        v1 = dr.gather(mi.Float, self._table, i + 1)
+        v0 = dr.gather(mi.Float, self.m_table, i)
+        v1 = dr.gather(mi.Float, self.m_table, i + 1)
         return dr.fma(f, v1 - v0, v0)
 
     def profile_at_theta(self, theta):
@@ -134,10 +211,13 @@ class DirectionalAreaEmitter(SurfaceEmitter):
         return np.interp(theta, np.linspace(0.0, np.pi / 2, len(self.values)), self.values)
 
     def hemispherical_integral(self):
-        """Exact integral of profile(cos theta) cos(theta) over the hemisphere."""
-        if self.profile == "cosine_power":
-            return 2 * np.pi / (self.exponent + 2)
-        return float(tabulated_hemispherical_integral(self.values))
+        """Exact integral of profile(cos theta) cos(theta) over the hemisphere (float64)."""
+        return self._integral64
+
+    def hemispherical_integral_ad(self):
+        """The same integral as the kernels use it: an opaque ``mi.Float``, differentiable
+        with respect to the exponent or the table values."""
+        return self._integral
 
     def total_power(self, samples=1 << 20):
         """Emitted power (RGB numpy): exact for uniform radiance, else estimated with
@@ -178,14 +258,14 @@ class DirectionalAreaEmitter(SurfaceEmitter):
 
     def sample_outgoing(self, si, sample, active):
         if self.profile == "cosine_power":
-            wo = square_to_power_cosine_hemisphere(sample, self.exponent + 1.0)
-            return wo, square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
+            wo = square_to_power_cosine_hemisphere(sample, self.m_exponent + 1.0)
+            return wo, square_to_power_cosine_hemisphere_pdf(wo, self.m_exponent + 1.0)
         return self._lobe.sample(sample)
 
     def pdf_outgoing(self, wo):
         """Density (solid angle) of :meth:`sample_outgoing` at local direction ``wo``."""
         if self.profile == "cosine_power":
-            return square_to_power_cosine_hemisphere_pdf(wo, self.exponent + 1.0)
+            return square_to_power_cosine_hemisphere_pdf(wo, self.m_exponent + 1.0)
         return self._lobe.pdf(wo)
 
     def to_string(self):

@@ -18,6 +18,11 @@ negative (an unbiased estimate of 1 - a from one direction can exceed 1); that i
 inherent to the method and averages out. Le is evaluated for the outgoing
 direction w = si.wi; the BSDF is queried with si.wi = w and wo = w' (its value
 includes cos(theta')), i.e. the albedo for light leaving in direction w.
+
+Scene parameters: ``traverse`` exposes ``target_radiance`` (an opaque ``mi.Color3f``);
+an edit is re-checked by the load-time reader (an invalid one raises and is undone).
+The albedo is estimated afresh at every evaluation, so an edit of the shape's BSDF
+needs nothing here.
 """
 import drjit as dr
 import mitsuba as mi
@@ -39,14 +44,16 @@ class SimulatedAreaEmitter(SurfaceEmitter):
     Le(x, w) = L~ (1 - a(x, w)) with the albedo a of the surface's own BSDF estimated
     afresh at each evaluation (eq. 4): a closed scene whose surfaces all carry it has
     radiance L~ everywhere, for ANY BSDF. Works with ``path``, ``volpath``, ``ptracer``
-    (eval, next-event estimation, emission sampling).
+    (eval, next-event estimation, emission sampling). Exposed parameter (``mi.traverse``):
+    ``target_radiance`` (a ``mi.Color3f``); an edit is checked like a value at load (an
+    invalid one raises and is undone).
 
     .. pluginparameters::
 
      * - target_radiance
        - float or RGB
        - required
-       - L~ > 0
+       - L~ > 0; exposed, differentiable
      * - samples
        - int
        - 1
@@ -81,13 +88,39 @@ class SimulatedAreaEmitter(SurfaceEmitter):
     M=1: x2.44 (``path``), x1.31 (``ptracer``).
     """
 
+    plugin = "simulated_area"
+
     def __init__(self, props):
         super().__init__(props)
-        p = Params(props, "simulated_area")
-        self.target = p.rgb("target_radiance", lo=0, lo_open=True, required=True).tolist()
+        p = Params(props, self.plugin)
+        self.target = self._read(p)
         self.samples = p.int("samples", 1, lo=1)
         self.estimator = p.choice("estimator", "uniform", ESTIMATORS)
         self.salt = Salt()
+        self.m_target = mi.Color3f(*self.target)
+        self._derive()
+        self._keep_valid()
+
+    # ---------------------------------------------------------- scene parameters
+    @staticmethod
+    def _read(p):
+        """L~ (a list of 3 floats), read and checked by ``p``: at load and after every edit."""
+        return p.rgb("target_radiance", lo=0, lo_open=True, required=True).tolist()
+
+    def traverse(self, callback):
+        super().traverse(callback)
+        callback.put("target_radiance", self.m_target, mi.ParamFlags.Differentiable)
+
+    def _exposed(self):
+        return {"target_radiance": self.m_target}
+
+    def _apply(self, p, keys):
+        self.target = self._read(p)
+        self._derive()
+
+    def _derive(self):
+        """The kernels' view of the parameters (one place for load and update)."""
+        dr.make_opaque(self.m_target)
 
     def _bsdf(self):
         bsdf = self._shape().bsdf()
@@ -119,8 +152,7 @@ class SimulatedAreaEmitter(SurfaceEmitter):
         return total / self.samples
 
     def radiance(self, si, wo, active):
-        target = mi.Color3f(*self.target)
-        return target * (1.0 - self.albedo_estimate(si, wo, active))
+        return self.m_target * (1.0 - self.albedo_estimate(si, wo, active))
 
     def to_string(self):
         return "SimulatedAreaEmitter[target_radiance=%s, samples=%d, estimator=%s]" % (

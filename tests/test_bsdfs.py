@@ -484,7 +484,7 @@ def test_separable_eq9_test_catches_a_wrong_normalization_integral():
     forgotten) makes eq. 9's normalization 6 % off (cos^3, L~ = 3, Le = 1.5)."""
     _, emitter = separable_on_emitter()
     cls = type(emitter)
-    with mock.patch.object(cls, "hemispherical_integral", lambda self: 2 * np.pi / (self.exponent + 1)):
+    with mock.patch.object(cls, "hemispherical_integral_ad", lambda self: 2 * np.pi / (self.exponent + 1)):
         err = check_separable_values("cos3", 140 + sorted(SEPARABLE_CASES).index("cos3"))
     assert err > 1000, err
 

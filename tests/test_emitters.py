@@ -344,7 +344,7 @@ def profile_linear_in_cos(original):
         c = dr.clip(cos_theta, 0.0, 1.0)
         i = mi.UInt32(dr.minimum(dr.floor(dr.acos(c) / step), k - 2))
         c0, c1 = dr.cos(mi.Float(i) * step), dr.cos(mi.Float(i + 1) * step)
-        v0, v1 = dr.gather(mi.Float, self._table, i), dr.gather(mi.Float, self._table, i + 1)
+        v0, v1 = dr.gather(mi.Float, self.m_table, i), dr.gather(mi.Float, self.m_table, i + 1)
         return v0 + (c0 - c) / (c0 - c1) * (v1 - v0)
     return profile_value
 
