@@ -21,6 +21,10 @@ its own and summed:
 ``frame.commit()`` (after an iteration's ``dr.eval``) marks the state an interrupted
 render returns to, so a Ctrl-C between an iteration's splats and its evaluation never
 keeps half an iteration.
+
+The package's integrators are not differentiable (they render with gradients
+suspended): ``render()`` refuses a scene with a parameter that requires gradients
+(:func:`parameter_requiring_gradients`), instead of returning zero derivatives.
 """
 import drjit as dr
 import mitsuba as mi
@@ -36,6 +40,8 @@ from mi_plugins.progress import Progress, Steps
 SPLAT_MODE = dr.ReduceMode.Expand
 
 SUPPORTED = "a JIT RGB (non-polarized) variant such as 'llvm_ad_rgb' or 'cuda_ad_rgb'"
+#: Mitsuba's differentiable integrators, named by the refusal
+DIFFERENTIABLE = "Mitsuba's 'prb' or 'prbvolpath'"
 
 
 def check_variant(plugin):
@@ -44,6 +50,24 @@ def check_variant(plugin):
     if variant.startswith("scalar") or "rgb" not in variant or "polarized" in variant:
         raise RuntimeError("%s: variant '%s' is not supported: this integrator is vectorised with Dr.Jit; use %s"
                            % (plugin, variant, SUPPORTED))
+
+
+def parameter_requiring_gradients(scene):
+    """The key (in ``mi.traverse(scene)``) of the first differentiable scene parameter that
+    requires gradients, or None. One traversal; valid inside ``dr.suspend_grad()`` too
+    (mi.render calls render() there)."""
+    with dr.resume_grad():
+        params = mi.traverse(scene)
+        for key in params.keys():
+            if (params.flags(key) & mi.ParamFlags.NonDifferentiable) == 0 and dr.grad_enabled(params[key]):
+                return key
+    return None
+
+
+def gradients_error(plugin, key):
+    return NotImplementedError("%s: the scene parameter '%s' requires gradients, but %s is not differentiable (it "
+                               "renders with gradients suspended: every derivative would be zero); render "
+                               "derivatives with %s" % (plugin, key, plugin, DIFFERENTIABLE))
 
 
 class Frame:
@@ -265,6 +289,9 @@ class CoreIntegrator(mi.SamplingIntegrator):
         spp = int(spp) if spp else int(sensor.sampler().sample_count())
         if spp < 1:
             raise ValueError("%s: spp=%d must be >= 1" % (self.plugin, spp))
+        key = parameter_requiring_gradients(scene)
+        if key is not None:
+            raise gradients_error(self.plugin, key)
         frame = Frame(scene, sensor, spp, seed)
         with dr.suspend_grad():
             if self.iterative:
@@ -276,6 +303,12 @@ class CoreIntegrator(mi.SamplingIntegrator):
 
     def render_frame(self, frame):
         raise NotImplementedError
+
+    def render_forward(self, scene, *args, **kwargs):
+        """Not differentiable (see :func:`parameter_requiring_gradients`): refused."""
+        raise gradients_error(self.plugin, parameter_requiring_gradients(scene) or "given to mi.render")
+
+    render_backward = render_forward
 
     def to_string(self):
         return "%s[%s]" % (type(self).__name__, self.plugin)

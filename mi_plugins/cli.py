@@ -26,6 +26,9 @@ def _parser():
     v.add_argument("--report", metavar="DIR", help="write verify.json and verify.md into DIR")
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--list", action="store_true", help="list the integrators and cases and exit")
+    v.add_argument("--gradients", action="store_true",
+                   help="the gradient matrix instead: Mitsuba's differentiable integrators against the analytic "
+                        "cases' exact derivatives, forward and reverse mode (--report writes gradients.json/.md)")
 
     r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR, PNG or JPEG file")
     r.add_argument("scene", metavar="SCENE.xml")
@@ -48,6 +51,8 @@ def _parser():
 
 
 def _verify(args):
+    if args.gradients and args.suite != "analytic":
+        raise ValueError("--gradients applies to --suite analytic (got --suite %s)" % args.suite)
     if args.suite == "scenes":
         from . import conformance
         if args.list:
@@ -55,7 +60,9 @@ def _verify(args):
             print("scenes:      " + ", ".join(conformance.scenes()))
             return 0
         return conformance.verify(args.integrators, args.scenes, quick=args.quick, report=args.report, seed=args.seed)
-    from .analytic import matrix
+    from .analytic import gradient_matrix, matrix
+    if args.gradients:
+        matrix = gradient_matrix  # the same interface: run, format_table, write_reports, INTEGRATORS, cases
     if args.list:
         print("integrators: " + ", ".join(matrix.INTEGRATORS))
         print("cases:       " + ", ".join(matrix.all_cases()))
@@ -64,8 +71,9 @@ def _verify(args):
     t0 = time.perf_counter()
 
     def progress(r):
-        print("  %-5s %-22s %-16s %s" % (r.status, r.case, r.integrator,
-                                         r.reason if not r.applicable else "z=%+.2f  %.2fs" % (r.z, r.seconds)),
+        what = " dL/d%s %s" % (r.parameter, r.mode) if args.gradients else ""
+        print("  %-5s %-22s %-16s%s %s" % (r.status, r.case, r.integrator, what,
+                                           r.reason if not r.applicable else "z=%+.2f  %.2fs" % (r.z, r.seconds)),
               flush=True)
 
     results = matrix.run(args.integrators, args.scenes, quick=args.quick, seed=args.seed, progress=progress)

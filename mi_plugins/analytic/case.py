@@ -6,8 +6,13 @@ cases override :meth:`AnalyticCase.exact_constant`; spatially varying cases
 override :meth:`AnalyticCase.exact_at`, which evaluates the exact radiance at
 the first surface hit of camera rays, and :meth:`AnalyticCase.expected`
 averages it over each pixel footprint (box pixel filter) with stratified
-supersampling.
+supersampling. Where the radiance has a closed-form derivative w.r.t. a named case
+parameter, :meth:`AnalyticCase.add_derivative` declares it together with the scene
+parameter that realises it, and :meth:`AnalyticCase.expected_derivative` returns the
+exact derivative image (see :mod:`mi_plugins.analytic.gradients`).
 """
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -65,6 +70,32 @@ def truncated_geometric(ratio, max_depth):
     return np.array([sum(r ** k for k in range(max_depth)) for r in ratio])
 
 
+def truncated_geometric_derivative(ratio, max_depth):
+    """d/dratio of :func:`truncated_geometric`: sum_{k < D} k ratio^(k-1) (-1: 1 / (1 - ratio)^2)."""
+    ratio = rgb(ratio, "ratio")
+    if max_depth is None or max_depth < 0:
+        return 1.0 / (1.0 - ratio) ** 2
+    return np.array([sum(k * r ** (k - 1) for k in range(1, max_depth)) for r in ratio])
+
+
+@dataclass
+class Derivative:
+    """The closed-form derivative of a case's radiance w.r.t. one named case parameter.
+
+    ``key``: the scene parameter that realises it, relative to each surface: on every
+    surface ``<surface id>.<key>`` (or ``<surface id>.<key>.value``, a texture's value) of
+    ``mi.traverse(scene)``, all moved together. ``constant(max_depth)``: the RGB derivative
+    where it is the same everywhere, else ``at(si, ray, max_depth, scene)``: Color3f at the
+    first hit of camera rays. ``bias``: a known bounded absolute bias of the closed form in
+    this scene (0: exact). ``formula``: one line for reports.
+    """
+    key: str
+    constant: object = None
+    at: object = None
+    bias: float = 0.0
+    formula: str = ""
+
+
 class AnalyticCase:
     """A closed scene with known exact radiance.
 
@@ -90,6 +121,8 @@ class AnalyticCase:
         self.fov = float(fov)
         self.params = dict(params or {})
         self.description = description
+        #: {parameter name: Derivative}: the closed-form derivatives (add_derivative)
+        self.derivatives = {}
 
     # ------------------------------------------------------------------ scene
     def sensor_dict(self, sampler=None):
@@ -139,7 +172,45 @@ class AnalyticCase:
     def expected_mean(self, max_depth=-1):
         return float(np.mean(self.expected(max_depth)))
 
-    def _supersampled(self, max_depth, k):
+    # ------------------------------------------------------------------ exact derivatives
+    def add_derivative(self, name, key, constant=None, at=None, bias=0.0, formula=""):
+        """Declare the closed-form derivative w.r.t. parameter ``name`` (see :class:`Derivative`)."""
+        if (constant is None) == (at is None):
+            raise ValueError("add_derivative(%r): give exactly one of constant= and at=" % (name,))
+        self.derivatives[name] = Derivative(key, constant, at, float(bias), formula)
+        return self
+
+    def derivative(self, name):
+        """The :class:`Derivative` named ``name``; ValueError naming the valid names otherwise."""
+        if name not in self.derivatives:
+            valid = ", ".join(sorted(self.derivatives)) or "none (no derivative of this case has a closed form)"
+            raise ValueError("%s: name=%r has no closed-form derivative; valid names: %s" % (self.name, name, valid))
+        return self.derivatives[name]
+
+    def expected_derivative(self, name, max_depth=-1, supersampling=None):
+        """Exact per-pixel derivative of the radiance w.r.t. parameter ``name`` moved together
+        on every surface, numpy (H, W, 3), averaged over pixel footprints like :meth:`expected`."""
+        spec = self.derivative(name)
+        if spec.constant is not None:
+            value = rgb(spec.constant(max_depth), "derivative %r" % name)
+            return np.broadcast_to(value, (self.resolution, self.resolution, 3)).astype(np.float64)
+        return self._supersampled(max_depth, int(supersampling or self.supersampling), spec.at)
+
+    def derivative_keys(self, name, params):
+        """The keys of ``params`` (``mi.traverse`` of this case's scene) that realise ``name``:
+        one per surface. ValueError naming the missing keys where the plugins do not list them."""
+        key = self.derivative(name).key
+        keys, missing = [], []
+        for surface in self.surfaces:
+            found = [k for k in ("%s.%s" % (surface, key), "%s.%s.value" % (surface, key)) if k in params]
+            (keys if found else missing).append(found[0] if found else "%s.%s" % (surface, key))
+        if missing:
+            raise ValueError("%s: parameter %r is realised by the scene parameter(s) %s, which mi.traverse(scene) "
+                             "does not list (the plugin does not expose it for differentiation)"
+                             % (self.name, name, ", ".join(missing)))
+        return keys
+
+    def _supersampled(self, max_depth, k, exact_at=None):
         scene = self.scene({"type": "path"})
         sensor = scene.sensors()[0]
         res = self.resolution
@@ -151,7 +222,7 @@ class AnalyticCase:
         py = mi.Float(pixel // res) + (mi.Float(sub // k) + 0.5) / k
         ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(px / res, py / res), mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        value = self.exact_at(si, ray, max_depth, scene)
+        value = (exact_at or self.exact_at)(si, ray, max_depth, scene)
         value = dr.select(si.is_valid(), value, dr.nan)  # an open case would show as NaN
         acc = dr.zeros(mi.Color3f, res * res)
         dr.scatter_reduce(dr.ReduceOp.Add, acc, value / (k * k), pixel)

@@ -8,6 +8,9 @@ Exact values (from the analytic-scenes paper of Szirmay-Kalos, Kovács and Abbas
 - diffuse sphere: L(x) = Le(x) + E * sum_{1<=k<D} a^k  ->  Le(x) + E a / (1 - a),
                   E = area mean of Le over the sphere (paper section 3.1)
 - mirror sphere:  L = Le * sum_{k<D} k_r^k  ->  Le / (1 - k_r)   (paper section 3.2)
+
+Their derivatives w.r.t. the albedo, reflectance and emission follow term by term
+(``case.derivatives``; d/dx sum_{k<D} x^k = sum_{k<D} k x^(k-1) -> 1 / (1 - x)^2).
 """
 import drjit as dr
 import mitsuba as mi
@@ -15,7 +18,7 @@ import numpy as np
 
 from .. import geometry as geo
 from .case import (AnalyticCase, camera_for, closed_surfaces, require_range, rgb, rgb_dict,
-                   truncated_geometric)
+                   truncated_geometric, truncated_geometric_derivative as geometric_derivative)
 
 #: Bekaert checkerboard albedos (RGB) of the two cells; emission is 1 - albedo.
 BEKAERT_ALBEDO = ((0.2, 0.5, 0.8), (0.7, 0.35, 0.1))
@@ -35,6 +38,20 @@ class ConstantCase(AnalyticCase):
                              % (self.name, max_depth))
         return self._value_fn(max_depth)
 
+    def expected_derivative(self, name, max_depth=-1, supersampling=None):
+        self.derivative(name)
+        self.exact_constant(max_depth)  # refuses the depths without an exact value
+        return super().expected_derivative(name, max_depth, supersampling)
+
+
+def furnace_derivatives(case, a, le):
+    """dL/da and dL/dLe of a furnace (albedo ``a``, emission ``le``; moved on every surface)."""
+    case.add_derivative("albedo", "bsdf.reflectance.value", lambda d: le * geometric_derivative(a, d),
+                        formula="dL/da = Le sum_{k<D} k a^(k-1) -> Le / (1 - a)^2")
+    case.add_derivative("emission", "emitter.radiance.value", lambda d: truncated_geometric(a, d),
+                        formula="dL/dLe = sum_{k<D} a^k -> 1 / (1 - a)")
+    return case
+
 
 def furnace(albedo=0.5, emission=0.5, geometry="box", resolution=32, **geometry_options):
     """Constant diffuse albedo a and diffuse emission Le everywhere: L = Le / (1 - a).
@@ -46,10 +63,11 @@ def furnace(albedo=0.5, emission=0.5, geometry="box", resolution=32, **geometry_
     le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
     surfaces = closed_surfaces(geometry, {"type": "diffuse", "reflectance": rgb_dict(a)},
                                {"type": "area", "radiance": rgb_dict(le)}, **geometry_options)
-    return ConstantCase("furnace_" + geometry, surfaces, camera_for(geometry),
+    case = ConstantCase("furnace_" + geometry, surfaces, camera_for(geometry),
                         lambda d: le * truncated_geometric(a, d), resolution=resolution,
                         params=dict(albedo=albedo, emission=emission, geometry=geometry),
                         description="diffuse albedo %s, emission %s: L = Le/(1-a)" % (albedo, emission))
+    return furnace_derivatives(case, a, le)
 
 
 def keller_cube(resolution=32):
@@ -124,6 +142,12 @@ class DiffuseSphereCase(AnalyticCase):
         bounces = truncated_geometric(self.albedo, max_depth) - 1.0
         return mi.Color3f(le) + mi.Color3f(*[float(v) for v in self.mean_emission * bounces])
 
+    def add_albedo_derivative(self, bias=0.0):
+        """dL/da = E sum_{1<=k<D} k a^(k-1): the same everywhere (Le(x) does not depend on a)."""
+        return self.add_derivative("albedo", "bsdf.reflectance.value",
+                                   lambda d: self.mean_emission * geometric_derivative(self.albedo, d), bias=bias,
+                                   formula="dL/da = E sum_{1<=k<D} k a^(k-1) -> E / (1 - a)^2")
+
 
 def _emission_texture_dict(emission):
     if np.ndim(emission) >= 2:
@@ -152,6 +176,11 @@ def sphere_area_mean(texture, n=(1024, 2048)):
 
 #: tolerance for the sphere-limit value on the geodesic sphere (see diffuse_sphere)
 MESH_SPHERE_BIAS = 3e-4
+
+#: tolerance for the sphere-limit derivative dL/da on the geodesic sphere: measured at a = 0.5
+#: (16 x 16 px, 16 runs) -2e-5 +- 3e-4 at full depth (prb_basic, max_depth 30, 512 spp) and
+#: -1.9e-4 +- 8e-5 at max_depth 2 (direct_projective, 1024 spp), of dL/da = 1.85 and 0.46
+MESH_SPHERE_DERIVATIVE_BIAS = 1e-3
 
 #: RGB emission levels of the tessellated diffuse sphere (one shape per level)
 MESH_SPHERE_LEVELS = ((1.2, 0.3, 0.2), (0.2, 0.9, 0.4), (0.3, 0.3, 1.1), (0.9, 0.8, 0.1), (0.05, 0.05, 0.05))
@@ -213,7 +242,7 @@ def diffuse_sphere(albedo=0.5, emission=None, radius=1.0, resolution=32, geometr
         # 1280-triangle sphere deviates from the sphere limit by -7e-5 +- 6e-5 (a = 0.5,
         # full depth) and 2e-5 +- 2e-5 (max_depth 2); 80 triangles: 3e-5 +- 8e-5.
         case.known_bias = MESH_SPHERE_BIAS
-        return case
+        return case.add_albedo_derivative(MESH_SPHERE_DERIVATIVE_BIAS)
     if geometry != "sphere":
         raise ValueError("geometry=%r: diffuse_sphere supports 'sphere' (exact) and 'sphere_mesh'" % (geometry,))
     r = float(require_range(radius, "radius", 0.0, None, lo_open=True, what="range")[0])
@@ -223,12 +252,13 @@ def diffuse_sphere(albedo=0.5, emission=None, radius=1.0, resolution=32, geometr
                                {"type": "area", "radiance": radiance})
     surfaces["sphere"]["radius"] = r
     mean = sphere_area_mean(mi.load_dict(radiance))
-    return DiffuseSphereCase("diffuse_sphere", surfaces, camera_for("sphere", r), a, mean,
+    case = DiffuseSphereCase("diffuse_sphere", surfaces, camera_for("sphere", r), a, mean,
                              resolution=resolution,
                              params=dict(albedo=albedo, radius=r, emission="texture" if np.ndim(emission) >= 2
                                          else emission),
                              description="albedo %s, textured emission (E = %s): L = Le(x) + E a/(1-a)"
                              % (albedo, np.array2string(mean, precision=4)))
+    return case.add_albedo_derivative()
 
 
 class MirrorSphereCase(AnalyticCase):
@@ -250,6 +280,25 @@ class MirrorSphereCase(AnalyticCase):
         le = si.emitter(scene).eval(si)
         return le * mi.Color3f(*[float(v) for v in truncated_geometric(self.reflectance, max_depth)])
 
+    def add_derivatives(self, radiance=None):
+        """dL/dk = Le(theta) sum_{j<D} j k^(j-1); dL/dR = Le(theta) / R sum_{j<D} k^j for the emitter's
+        constant RGB radiance R (diffuse emission: Le = R; directional: Le(theta) = R profile(theta))."""
+        k, le, key = self.reflectance, self.diffuse_emission, "bsdf.specular_reflectance.value"
+        if le is None:
+            color = lambda v: mi.Color3f(*[float(x) for x in v])
+            self.add_derivative("reflectance", key, formula="dL/dk = Le(theta) sum_{j<D} j k^(j-1) -> Le(theta) / "
+                                "(1 - k)^2", at=lambda si, ray, d, scene: si.emitter(scene).eval(si)
+                                * color(geometric_derivative(k, d)))
+            if radiance is not None and np.all(radiance > 0):
+                self.add_derivative("emission", "emitter.radiance", formula="dL/dR = Le(theta) / R sum_{j<D} k^j "
+                                    "-> Le(theta) / (R (1 - k))", at=lambda si, ray, d, scene:
+                                    si.emitter(scene).eval(si) * color(truncated_geometric(k, d) / radiance))
+            return self
+        self.add_derivative("reflectance", key, lambda d: le * geometric_derivative(k, d),
+                            formula="dL/dk = Le sum_{j<D} j k^(j-1) -> Le / (1 - k)^2")
+        return self.add_derivative("emission", "emitter.radiance.value", lambda d: truncated_geometric(k, d),
+                                   formula="dL/dLe = sum_{j<D} k^j -> 1 / (1 - k)")
+
     def not_applicable(self, integrator):
         if integrator.get("type") == "ptracer":
             return ("a light tracer cannot connect light paths to a pinhole camera through an ideal "
@@ -270,15 +319,20 @@ def mirror_sphere(reflectance=0.5, emission=0.5, resolution=32):
             raise ValueError("emission=%r: a dict must describe a 'directional_area' emitter" % (emission,))
         surfaces = closed_surfaces("sphere", bsdf, emission)
         label = "%s profile" % emission.get("profile", "cosine_power")
-        return MirrorSphereCase("mirror_sphere_directional", surfaces, camera_for("sphere"), k,
+        case = MirrorSphereCase("mirror_sphere_directional", surfaces, camera_for("sphere"), k,
                                 resolution=resolution, params=dict(reflectance=reflectance, emission=emission),
                                 description="ideal mirror k = %s, emission %s: L(theta) = Le(theta)/(1-k)"
                                 % (reflectance, label))
+        radiance = emission.get("radiance", 1.0)
+        if isinstance(radiance, dict):  # a constant RGB radiance has a closed-form derivative, a texture not
+            radiance = radiance.get("value") if radiance.get("type") == "rgb" else None
+        return case.add_derivatives(None if radiance is None else rgb(radiance, "radiance"))
     le = require_range(emission, "emission", 0.0, None, what="range of physical emission")
     surfaces = closed_surfaces("sphere", bsdf, {"type": "area", "radiance": rgb_dict(le)})
-    return MirrorSphereCase("mirror_sphere", surfaces, camera_for("sphere"), k, diffuse_emission=le,
+    case = MirrorSphereCase("mirror_sphere", surfaces, camera_for("sphere"), k, diffuse_emission=le,
                             resolution=resolution, params=dict(reflectance=reflectance, emission=emission),
                             description="ideal mirror k = %s, emission %s: L = Le/(1-k)" % (reflectance, emission))
+    return case.add_derivatives()
 
 
 #: name -> factory(resolution=...) of the cases in the verification matrix

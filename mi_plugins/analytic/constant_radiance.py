@@ -2,12 +2,13 @@
 
 BRDF testing (section 2.1): every surface of a closed scene gets the BSDF under
 test and a ``simulated_area`` emitter Le = L~ (1 - a(x, w)) (albedo estimated
-afresh at each evaluation, unbiased): the radiance is L~ everywhere, for ANY BSDF.
+afresh at each evaluation, unbiased): the radiance is L~ everywhere, for ANY BSDF;
+so is it in lightsource testing (section 2.2), hence dL/dL~ = 1 (L~ moved on every surface).
 """
 import numpy as np
 
 from .case import camera_for, closed_surfaces, require_range, rgb, rgb_dict
-from .classic import ConstantCase
+from .classic import ConstantCase, furnace_derivatives
 
 #: the paper's section 4 set-up: Sierpinski scene, average albedo 0.47, Phong n = 10
 PAPER_ALBEDO = 0.47
@@ -26,16 +27,22 @@ def constant_radiance_brdf(bsdf, target_radiance=1.0, geometry="box", samples=1,
     emitter = {"type": "simulated_area", "target_radiance": rgb_dict(target), "samples": int(samples),
                "estimator": estimator}
     surfaces = closed_surfaces(geometry, bsdf, emitter)
-    return ConstantCase(name or "constant_brdf_%s_%s" % (bsdf["type"], geometry), surfaces, camera_for(geometry),
+    case = ConstantCase(name or "constant_brdf_%s_%s" % (bsdf["type"], geometry), surfaces, camera_for(geometry),
                         lambda d: _constant_only(target, d), truncation_exact=False, resolution=resolution,
                         params=dict(bsdf=bsdf["type"], target_radiance=target_radiance, geometry=geometry,
                                     samples=samples, estimator=estimator),
                         description="BSDF %s with simulated emission (M=%d, %s): L = L~"
                         % (bsdf["type"], samples, estimator))
+    return target_derivative(case, "emitter.target_radiance")
 
 
 def _constant_only(target, max_depth):
     return np.array(target, dtype=np.float64)
+
+
+def target_derivative(case, key):
+    """dL/dL~ = 1: the target radiance ``key`` (of every surface's emitter or BSDF) moved together."""
+    return case.add_derivative("target_radiance", key, lambda d: np.ones(3), formula="dL/dL~ = 1")
 
 
 def sierpinski_diffuse_exact(resolution=32):
@@ -43,9 +50,10 @@ def sierpinski_diffuse_exact(resolution=32):
     a = PAPER_ALBEDO
     surfaces = closed_surfaces("sierpinski", {"type": "diffuse", "reflectance": rgb_dict(a)},
                                {"type": "area", "radiance": rgb_dict(1.0 - a)})
-    return ConstantCase("sierpinski_diffuse_exact", surfaces, camera_for("sierpinski"),
+    case = ConstantCase("sierpinski_diffuse_exact", surfaces, camera_for("sierpinski"),
                         lambda d: np.ones(3), truncation_exact=False, resolution=resolution,
                         params=dict(albedo=a), description="diffuse 0.47, exact emission 0.53: L = 1")
+    return furnace_derivatives(case, rgb(a, "albedo"), rgb(1.0 - a, "emission"))  # a furnace: L = Le / (1 - a)
 
 
 def sierpinski_diffuse_simulated(resolution=32):
@@ -106,11 +114,12 @@ def constant_radiance_lightsource(emitters, target_radiance=2.0, geometry="sierp
             shape["emitter"] = emitter
             bsdf["emission"] = {"type": "ref", "id": emitter["id"]}
         shape["bsdf"] = bsdf
-    return ConstantCase(name or "constant_lightsource_%s" % geometry, surfaces, camera_for(geometry),
+    case = ConstantCase(name or "constant_lightsource_%s" % geometry, surfaces, camera_for(geometry),
                         lambda d: _constant_only(target, d), truncation_exact=False, resolution=resolution,
                         params=dict(emitters=sorted(emitters), target_radiance=target_radiance, geometry=geometry,
                                     normalization=normalization),
                         description="separable BSDFs, directional emitters on %s: L = L~" % ", ".join(sorted(emitters)))
+    return target_derivative(case, "bsdf.target_radiance")
 
 
 def _geometry_surfaces(geometry):

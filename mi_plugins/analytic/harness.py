@@ -157,11 +157,16 @@ def integrator_label(d):
     return d["type"] + ("(%s)" % extra if extra else "")
 
 
+def run_seed(seed, r):
+    """The render seed of run ``r`` of a check with ``seed``."""
+    return (int(seed) * 7919 + int(r)) & 0xFFFFFFFF
+
+
 def render_runs(scene, spp, runs, seed):
     """Render ``runs`` independent images (numpy, float64) with seeds derived from ``seed``."""
     images = []
     for r in range(runs):
-        img = mi.render(scene, spp=spp, seed=(seed * 7919 + r) & 0xFFFFFFFF)
+        img = mi.render(scene, spp=spp, seed=run_seed(seed, r))
         images.append(np.array(img, dtype=np.float64))
     return np.stack(images)
 
@@ -270,6 +275,24 @@ def check(case, integrator, spp=64, runs=16, seed=0, z_bound=Z_BOUND, bias=0.0, 
     Warns (``RuntimeWarning``) when ``runs`` is so small that the Student-t bound exceeds
     1.5 times ``z_bound`` (fewer runs at the same total cost test less).
     """
+    d, label = prepare_check("check", case, integrator, spp, runs, bias, z_bound, sampler)
+    depth = effective_max_depth(d) if max_depth is None else int(max_depth)
+    result = CheckResult(case=case.name, integrator=label, spp=int(spp), runs=int(runs), bias=float(bias),
+                         max_depth=depth)
+    reason = case.not_applicable(d)
+    if reason:
+        result.applicable, result.reason = False, reason
+        return result
+    exact = case.expected(depth)
+    t0 = time.perf_counter()
+    images = render_runs(case.scene(d, sampler), int(spp), int(runs), int(seed))
+    result.seconds = time.perf_counter() - t0
+    return record(result, compare(images, exact, z_bound, bias, pixel_alpha, max_pixel_failure_fraction))
+
+
+def prepare_check(caller, case, integrator, spp, runs, bias, z_bound, sampler=None):
+    """The arguments every check validates: returns (integrator dict, report label).
+    Warns (``RuntimeWarning``, at the caller of ``caller``) when ``runs`` gives little power."""
     d = integrator_dict(integrator)
     label = integrator_label(d)
     if sampler:
@@ -282,21 +305,15 @@ def check(case, integrator, spp=64, runs=16, seed=0, z_bound=Z_BOUND, bias=0.0, 
         raise ValueError("bias=%r: must be >= 0" % (bias,))
     t_bound = stats.t_quantile_for_z(z_bound, int(runs) - 1)
     if t_bound > 1.5 * z_bound:
-        warnings.warn("check(%s x %s): runs=%d gives a Student-t bound of %.3g SE (%.1fx the normal %.3g): the "
+        warnings.warn("%s(%s x %s): runs=%d gives a Student-t bound of %.3g SE (%.1fx the normal %.3g): the "
                       "check has little power; prefer more runs at the same total cost (>= %d)"
-                      % (case.name, label, int(runs), t_bound, t_bound / z_bound, z_bound,
-                         min_runs(z_bound)), RuntimeWarning, stacklevel=2)
-    depth = effective_max_depth(d) if max_depth is None else int(max_depth)
-    result = CheckResult(case=case.name, integrator=label, spp=int(spp), runs=int(runs), bias=float(bias),
-                         max_depth=depth)
-    reason = case.not_applicable(d)
-    if reason:
-        result.applicable, result.reason = False, reason
-        return result
-    exact = case.expected(depth)
-    t0 = time.perf_counter()
-    images = render_runs(case.scene(d, sampler), int(spp), int(runs), int(seed))
-    result.seconds = time.perf_counter() - t0
-    for key, value in compare(images, exact, z_bound, bias, pixel_alpha, max_pixel_failure_fraction).items():
+                      % (caller, case.name, label, int(runs), t_bound, t_bound / z_bound, z_bound,
+                         min_runs(z_bound)), RuntimeWarning, stacklevel=3)
+    return d, label
+
+
+def record(result, comparison):
+    """Copy the statistics of :func:`compare` into ``result`` (a CheckResult); returns it."""
+    for key, value in comparison.items():
         setattr(result, key, value)
     return result

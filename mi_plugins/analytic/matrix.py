@@ -248,20 +248,23 @@ def format_table(results):
     return "\n".join(lines)
 
 
-def write_reports(results, directory):
-    """Write verify.json and verify.md into ``directory``; returns their paths."""
+def write_reports(results, directory, name="verify", columns=COLUMNS, rows=table_rows,
+                  label=lambda r: "%s x %s" % (r.case, r.integrator)):
+    """Write ``name``.json and ``name``.md into ``directory``; returns their paths. The
+    gradient matrix passes its own name, columns, rows and failure label."""
     os.makedirs(directory, exist_ok=True)
-    json_path = os.path.join(directory, "verify.json")
-    md_path = os.path.join(directory, "verify.md")
+    json_path = os.path.join(directory, name + ".json")
+    md_path = os.path.join(directory, name + ".md")
     with open(json_path, "w") as f:
         json.dump({"created": time.strftime("%Y-%m-%dT%H:%M:%S"), "results": [r.as_dict() for r in results]},
                   f, indent=2)
     with open(md_path, "w") as f:
-        f.write("# mi-plugins verify\n\n| " + " | ".join(COLUMNS) + " |\n|" + "---|" * len(COLUMNS) + "\n")
-        for row in table_rows(results):
+        title = "mi-plugins verify" + ("" if name == "verify" else " --" + name)
+        f.write("# %s\n\n| " % title + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n")
+        for row in rows(results):
             f.write("| " + " | ".join(str(v) for v in row) + " |\n")
         failed = [r for r in results if r.applicable and not r.passed]
         for r in failed:
-            f.write("\n**%s %s x %s**: %s%s\n" % (r.status, r.case, r.integrator, "; ".join(r.failures),
-                                                 (" (known: %s)" % r.known_failure) if r.known_failure else ""))
+            f.write("\n**%s %s**: %s%s\n" % (r.status, label(r), "; ".join(r.failures),
+                                              (" (known: %s)" % r.known_failure) if r.known_failure else ""))
     return json_path, md_path
