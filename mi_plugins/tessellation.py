@@ -20,7 +20,11 @@ A shape's ``to_world`` maps the local point (its normal by the inverse transpose
 intersections (position, uv and normal). The cell count follows the patch size ``h``
 (default: the scene's bounding-box diagonal / :data:`CELLS_PER_DIAGONAL`): radiance is
 constant per patch in these methods, so ``h`` is the spatial resolution of the solution
-on these shapes, as the triangle size is on meshes.
+on these shapes, as the triangle size is on meshes. Unlike a triangle, a cell of the
+sphere or cylinder is curved: a direction can face part of it only, so a value evaluated
+at one of its points must be taken on the side the patch is used from (``ray_bundle``:
+``transfer.on_side``; a point facing away otherwise zeroes the cell, -0.09 (h / r)^2 of
+the power in the furnace sphere).
 """
 import drjit as dr
 import mitsuba as mi

@@ -107,12 +107,29 @@ def bounding_sphere(scene, table):
     return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
 
 
+def on_side(v, sign):
+    """Local direction ``v`` mirrored in the tangent plane into the hemisphere of ``sign``
+    (+: the surface normal's, -: the back).
+
+    A patch has one radiance per direction and side, used only by the lines that meet
+    the patch where its side faces them. On a flat patch every point faces the same
+    way; a cell of a curved analytic shape (sphere, cylinder) can straddle the terminator
+    of a direction, and its uniformly random point may face away from a direction the
+    rest of the cell receives from or sends into. Evaluated there as it stands, the
+    emission and the BSDF are zero and the cell's whole value is lost: in the furnace
+    inside the analytic sphere -1.6 % at the quick patch size (0.43), ~h^2. So the
+    directions are taken to the patch's side at the random point: the patch average
+    the lines need, unchanged on flat patches wherever their value is used."""
+    return mi.Vector3f(v.x, v.y, dr.mulsign(dr.abs(v.z), sign))
+
+
 def bsdf_over_cosine(si, incoming, towards_source):
     """f(towards_source -> si.wi) * incoming, with f = bsdf.eval / |cos|, for sources on
-    the side of ``si.wi`` (the back side of two-sided BSDFs included)."""
+    the side of ``si.wi`` (the back side of two-sided BSDFs included; the source
+    direction is taken to that side, see :func:`on_side`)."""
     bsdf = si.bsdf()
-    wo = si.to_local(towards_source)
-    cos_in = mi.Frame3f.cos_theta(wo) * dr.sign(mi.Frame3f.cos_theta(si.wi))
+    wo = on_side(si.to_local(towards_source), mi.Frame3f.cos_theta(si.wi))
+    cos_in = dr.abs(mi.Frame3f.cos_theta(wo))
     value = mi.Color3f(bsdf.eval(mi.BSDFContext(), si, wo, cos_in > 1e-6))
     return dr.select(cos_in > 1e-6, value / cos_in, 0.0) * incoming
 
@@ -164,7 +181,10 @@ class Transport:
         side, tri, chain = self.layout.lane_parts()
         out = dr.gather(mi.Vector3f, dirs, chain) * (1.0 - 2.0 * mi.Float(side))
         sample = mi.Point2f(self.rng_patch.next_float32(), self.rng_patch.next_float32())
-        return self.layout.table.surface_interaction(tri, sample, out), tri, chain
+        table = self.layout.table
+        si = table.surface_interaction(tri, sample, out)
+        si.wi = on_side(si.wi, dr.select(tri < table.front_count, 1.0, -1.0))   # the patch's side (on_side)
+        return si, tri, chain
 
     def initial(self, dirs):
         """L_0 = the source term along every side of ``dirs`` (nothing carried yet)."""
