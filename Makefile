@@ -23,7 +23,7 @@ verify: setup
 	$(VENV)/bin/mi-plugins verify --report reports/full
 
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=25
 
 clean:
 	rm -rf $(VENV) reports build *.egg-info
