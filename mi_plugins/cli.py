@@ -20,7 +20,7 @@ def _parser():
     v.add_argument("--suite", choices=("analytic", "scenes"), default="analytic",
                    help="analytic: integrator x analytic-case matrix (default); scenes: conformance suite "
                         "(ordinary Mitsuba scenes, every package integrator against Mitsuba's path)")
-    v.add_argument("--quick", action="store_true", help="small subset at low resolution (< 2 minutes)")
+    v.add_argument("--quick", action="store_true", help="small subset at low resolution (about 3 minutes on 2 cores)")
     v.add_argument("--integrators", nargs="+", metavar="NAME", help="integrators of the matrix to run")
     v.add_argument("--scenes", nargs="+", metavar="CASE", help="analytic cases (or conformance scenes) to run")
     v.add_argument("--report", metavar="DIR", help="write verify.json and verify.md into DIR")
