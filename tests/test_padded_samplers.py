@@ -236,3 +236,18 @@ def test_lattice_generator_maximises_the_shortest_vector():
     n = 10007
     a = generator(n)
     assert np.gcd(a, n) == 1 and abs(a - n / ((1 + 5 ** 0.5) / 2)) < 2
+
+
+def test_a_known_finding_never_excuses_non_finite_pixels(monkeypatch):
+    """The matrix reports a check with NaN/inf pixels as FAIL even where the row carries a
+    documented finding for the case (a finding explains a bias, not a broken image)."""
+    from mi_plugins.analytic import harness
+
+    def broken(*args, **kwargs):
+        return harness.CheckResult(case="keller_cube", integrator="path", spp=1, runs=2,
+                                   failures=["3 non-finite pixel values (NaN/inf)"])
+    spec = matrix.IntegratorSpec({"type": "path"}, known_failures={"keller_cube": "a finding"})
+    monkeypatch.setitem(matrix.INTEGRATORS, "broken_row", spec)
+    monkeypatch.setattr(harness, "check", broken)
+    (result,) = matrix.run(["broken_row"], ["keller_cube"], quick=True)
+    assert result.status == "FAIL" and not result.known_failure
