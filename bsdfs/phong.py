@@ -23,8 +23,9 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.sampling import square_to_power_cosine_hemisphere
-from mi_plugins.params import ParameterError, Params
-from mi_plugins.textures import as_given, as_properties, restore, snapshot, texture_sum_max
+from mi_plugins import editable
+from mi_plugins.params import Params
+from mi_plugins.textures import texture_sum_max
 
 
 def _mirror_direction(wi):
@@ -81,15 +82,18 @@ class PhongBSDF(mi.BSDF):
             <rgb name="specular_reflectance" value="0.17"/><float name="exponent" value="10"/></bsdf>
     """
 
+    plugin = "phong"
+
     def __init__(self, props):
         super().__init__(props)
-        p = Params(props, "phong")
+        p = Params(props, self.plugin)
         self.kd, self.ks, self.exponent = self._read(p)
         self.m_exponent = mi.Float(self.exponent)
         self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
                              mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0] | self.m_components[1]
         self._derive(p)
+        editable.keep_valid(self)
 
     # ------------------------------------------------------------ parameters
     @staticmethod
@@ -107,7 +111,6 @@ class PhongBSDF(mi.BSDF):
                              "diffuse_reflectance + specular_reflectance <= 1 in every channel for an "
                              "energy-conserving BSDF (the sum reaches %.4g)" % total)
         dr.make_opaque(self.m_exponent)
-        self._valid = snapshot(self._exposed())
 
     def _exposed(self):
         return {"diffuse_reflectance": self.kd, "specular_reflectance": self.ks, "exponent": self.m_exponent}
@@ -118,21 +121,17 @@ class PhongBSDF(mi.BSDF):
         # a lobe-shape parameter, flagged like the roughness of Mitsuba's microfacet BSDFs
         callback.put("exponent", self.m_exponent, mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
 
+    def _apply(self, p, keys):
+        self.exponent = self._read(p)[2]      # the edited textures stay in place
+        self._derive(p)
+
     def parameters_changed(self, keys=()):
         """Re-reads the edited values with the load-time reader: an invalid edit raises its
         ParameterError and is undone (the last valid values are restored)."""
-        try:
-            self._update()
-        except ParameterError:
-            restore(self._exposed(), self._valid)
-            self._update()
-            raise
+        editable.parameters_changed(self, keys)
 
-    def _update(self):
-        given = {name: as_given(value) for name, value in self._exposed().items()}
-        p = Params(as_properties("phong", given), "phong")
-        self.exponent = self._read(p)[2]
-        self._derive(p)
+    def undo(self, notify=True):
+        editable.undo(self, notify)
 
     # ------------------------------------------------------------ helpers
     def _lobes(self, si, active):

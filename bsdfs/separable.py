@@ -30,8 +30,9 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.sampling import IsotropicLobe, Salt, hashed_rng
-from mi_plugins.params import ParameterError, Params, parameter_error
-from mi_plugins.textures import as_given, as_properties, restore, snapshot, texture_max
+from mi_plugins import editable
+from mi_plugins.params import Params, parameter_error
+from mi_plugins.textures import as_given, texture_max
 
 NORMALIZATIONS = ("exact", "simulated")
 
@@ -90,9 +91,11 @@ class SeparableBSDF(mi.BSDF):
         </shape>
     """
 
+    plugin = "separable"
+
     def __init__(self, props):
         super().__init__(props)
-        p = Params(props, "separable")
+        p = Params(props, self.plugin)
         self.target, self.emission = self._read(p)
         self.normalization = p.choice("normalization", "exact", NORMALIZATIONS)
         self.samples = p.int("samples", 16, lo=1)
@@ -105,6 +108,7 @@ class SeparableBSDF(mi.BSDF):
         self.m_components = [flags]
         self.m_flags = flags
         self._derive(p)
+        editable.keep_valid(self)
 
     # ------------------------------------------------------------ parameters
     @staticmethod
@@ -127,35 +131,38 @@ class SeparableBSDF(mi.BSDF):
                                  "channel (otherwise the BSDF would be negative)" % max_emission)
         dr.make_opaque(self.m_target)
         self._lobe = self._importance_lobe()
-        self._valid = snapshot({"target_radiance": self.m_target})
 
     def traverse(self, callback):
         callback.put("target_radiance", self.m_target, mi.ParamFlags.Differentiable)
 
+    def _exposed(self):
+        return {"target_radiance": self.m_target}
+
+    def _given(self):
+        given = {"target_radiance": as_given(self.m_target)}
+        if self.emission is not None:
+            given["emission"] = self.emission
+        return given
+
+    def _apply(self, p, keys):
+        self.target = self._read(p)[0]
+        self._derive(p)
+
     def parameters_changed(self, keys=()):
         """Re-reads L~ with the load-time reader and re-checks the rule with the emission:
-        an invalid edit raises its ParameterError and is undone (L~ and the emitter's
-        parameters, which the rule involves, back to their last valid values)."""
-        try:
-            self._update()
-        except ParameterError:
-            restore({"target_radiance": self.m_target}, self._valid)
-            if self.emission is not None:
-                self.emission.undo(notify=False)
-            self._update()
-            raise
+        an invalid edit raises its ParameterError and is undone (see :meth:`undo`)."""
+        editable.parameters_changed(self, keys)
+
+    def undo(self, notify=True):
+        """Back to the last valid L~ and, as the rule involves them, the emitter's last
+        valid parameters."""
+        if self.emission is not None:
+            self.emission.undo(notify=False)
+        editable.undo(self, notify)
 
     def emission_changed(self):
         """Called by the referenced emitter after an edit of its parameters."""
         self.parameters_changed(["emission"])
-
-    def _update(self):
-        given = {"target_radiance": as_given(self.m_target)}
-        if self.emission is not None:
-            given["emission"] = self.emission
-        p = Params(as_properties("separable", given), "separable")
-        self.target = self._read(p)[0]
-        self._derive(p)
 
     def _importance_lobe(self):
         """Sampling density proportional to (L~ - Le(w')) cos (channel means) when the

@@ -11,17 +11,13 @@ which passes the WORLD direction toward the camera in ``si.wi``).
 Positions are sampled uniformly by area on the emitting shape.
 
 Scene parameters: subclasses expose their parameters in ``traverse`` and implement
-``_exposed()`` ({name: exposed JIT value or texture}) and ``_apply(p, keys)`` (read the
-exposed values back with the plugin's reader ``p`` and recompute what depends on them);
-the base class's ``parameters_changed`` runs them, so that an edit through
-``mi.traverse`` is checked exactly as at load. An invalid edit raises its
-``ParameterError`` and is undone (the last valid values are restored).
+``_exposed()`` and ``_apply(p, keys)``; ``parameters_changed`` (:mod:`mi_plugins.editable`)
+checks an edit exactly as at load and undoes an invalid one.
 """
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins.params import ParameterError, Params
-from mi_plugins.textures import as_given, as_properties, restore, snapshot
+from mi_plugins import editable
 
 
 class SurfaceEmitter(mi.Emitter):
@@ -42,30 +38,15 @@ class SurfaceEmitter(mi.Emitter):
     def _notify(self):
         """After a valid edit: tell the plugins that depend on this emitter (none here)."""
 
-    def _reader(self):
-        """The plugin's reader over the exposed values, as a user would give them."""
-        given = {name: as_given(value) for name, value in self._exposed().items()}
-        return Params(as_properties(self.plugin, given), self.plugin)
-
     def _keep_valid(self):
-        """Called when the parameters are valid (at load, after an edit)."""
-        self._valid = snapshot(self._exposed())
+        editable.keep_valid(self)
 
     def parameters_changed(self, keys=()):
-        try:
-            self._apply(self._reader(), keys)
-            self._notify()
-        except ParameterError:
-            self.undo()
-            raise
-        self._keep_valid()
+        editable.parameters_changed(self, keys)
 
     def undo(self, notify=True):
         """Back to the last valid values, and what depends on them."""
-        restore(self._exposed(), self._valid)
-        self._apply(self._reader(), ())
-        if notify:
-            self._notify()
+        editable.undo(self, notify)
 
     # ---------------------------------------------------------- to implement
     def radiance(self, si, wo, active):
