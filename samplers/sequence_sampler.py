@@ -69,6 +69,10 @@ def reference(name, title, scramble, note=""):
          (``mi.render(seed=...)``): scenes differing only in the sampler's ``seed`` give
          different images for the same render seed; 0 = the render seed alone
 
+    .. code-block:: python
+
+        'sampler': {'type': '%(name)s', 'sample_count': 64}
+
     .. code-block:: xml
 
         <sampler type="%(name)s"><integer name="sample_count" value="64"/></sampler>
