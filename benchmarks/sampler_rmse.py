@@ -12,6 +12,13 @@ in the table). A cell marked ``!`` failed the unbiasedness check at that budget
 means).
 
     python3 benchmarks/sampler_rmse.py [--spp 4,16,64] [--runs 8] [--resolution 16] [--markdown]
+        [--samplers a,b,...] [--blocks K] [--rr-depth D]
+
+``--blocks K`` repeats every cell over K disjoint blocks of ``--runs`` seeds and prints
+the mean and standard error of the K RMSEs (differences of 1-2 % between samplers need
+it: one block of 256 runs varies by about 1 %). ``--rr-depth`` sets `path`'s
+``rr_depth`` (e.g. 1000: no Russian roulette), to separate the roulette's share of the
+error from the rest.
 """
 import argparse
 import os
@@ -28,27 +35,32 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import real_scene_meshes as rsm  # noqa: E402
 
 MITSUBA = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
-PACKAGE = ("sobol", "halton", "faure", "padded_sobol", "zsobol", "lattice")
+PACKAGE = ("sobol", "halton", "faure", "padded_sobol", "zsobol", "lattice", "cmj")
 CASES = ("diffuse_sphere_depth2", "diffuse_sphere", "bekaert_box", "cornell_box")
 #: orthogonal's own counts for the requested ones
 ORTHOGONAL = {16: 25, 64: 121}
 CORNELL_RES, CORNELL_REF_SPP = 32, 1 << 16
 
 
-def analytic_case(name, resolution):
+def path_dict(rr_depth=None, **extra):
+    """Mitsuba's `path` with its defaults, or with the given ``rr_depth``."""
+    return dict(type="path", **extra, **({} if rr_depth is None else {"rr_depth": int(rr_depth)}))
+
+
+def analytic_case(name, resolution, rr_depth=None):
     if name.startswith("diffuse_sphere"):
-        integrator = {"type": "path", "max_depth": 2} if name.endswith("depth2") else {"type": "path"}
-        return analytic.diffuse_sphere(resolution=resolution), integrator
-    return analytic.bekaert("box", resolution=resolution), {"type": "path"}
+        extra = {"max_depth": 2} if name.endswith("depth2") else {}
+        return analytic.diffuse_sphere(resolution=resolution), path_dict(rr_depth, **extra)
+    return analytic.bekaert("box", resolution=resolution), path_dict(rr_depth)
 
 
-def cornell(sampler, spp, runs, ref):
+def cornell(sampler, spp, runs, ref, block=0, rr_depth=None):
     d, _ = rsm.scene_dict("cornell", CORNELL_RES)
     d["sensor"]["sampler"] = {"type": sampler, "sample_count": spp}
-    scene, integrator = mi.load_dict(d), mi.load_dict({"type": "path"})
+    scene, integrator = mi.load_dict(d), mi.load_dict(path_dict(rr_depth))
     image, ref_var = ref
     errors, means = [], []
-    for j in range(runs):
+    for j in range(block * runs, (block + 1) * runs):
         img = np.array(mi.render(scene, integrator=integrator, spp=spp, seed=j), dtype=np.float64)
         errors.append(np.mean((img - image) ** 2 - ref_var))
         means.append(img.mean())
@@ -56,13 +68,26 @@ def cornell(sampler, spp, runs, ref):
     return float(np.sqrt(max(np.mean(errors), 0.0))), abs(z) <= 4.5
 
 
-def measure(case_name, sampler, spp, runs, resolution, ref):
-    """(RMSE, unbiased at this budget) of `path` with ``sampler`` at ``spp``."""
+def measure(case_name, sampler, spp, runs, resolution, ref, block=0, rr_depth=None):
+    """(RMSE, unbiased at this budget) of `path` with ``sampler`` at ``spp`` over block
+    ``block`` of ``runs`` render seeds (blocks are disjoint; block 0 is the default run)."""
     if case_name == "cornell_box":
-        return cornell(sampler, spp, runs, ref)
-    case, integrator = analytic_case(case_name, resolution)
-    r = analytic.check(case, integrator, spp=spp, runs=runs, sampler={"type": sampler})
+        return cornell(sampler, spp, runs, ref, block, rr_depth)
+    case, integrator = analytic_case(case_name, resolution, rr_depth)
+    r = analytic.check(case, integrator, spp=spp, runs=runs, seed=block, sampler={"type": sampler})
     return r.rmse, r.passed
+
+
+def measure_blocks(blocks, case_name, sampler, spp, runs, resolution, ref, rr_depth=None):
+    """(mean RMSE, its standard error or None for one block, unbiased in every block) over
+    ``blocks`` disjoint blocks of ``runs`` seeds."""
+    values, unbiased = [], True
+    for b in range(blocks):
+        value, ok = measure(case_name, sampler, spp, runs, resolution, ref, b, rr_depth)
+        values.append(value)
+        unbiased &= ok
+    se = float(np.std(values, ddof=1) / np.sqrt(blocks)) if blocks > 1 else None
+    return float(np.mean(values)), se, unbiased
 
 
 def rounded(sampler, spp):
@@ -76,17 +101,25 @@ def main():
     p.add_argument("--runs", type=int, default=8)
     p.add_argument("--resolution", type=int, default=16)
     p.add_argument("--cases", default=",".join(CASES))
+    p.add_argument("--samplers", default=",".join(MITSUBA + PACKAGE),
+                   help="the samplers to run (cells are relative to `independent` when it is among them)")
+    p.add_argument("--blocks", type=int, default=1, help="disjoint blocks of --runs seeds per cell (mean +- SE)")
+    p.add_argument("--rr-depth", type=int, default=None, help="`path`'s rr_depth (default: Mitsuba's)")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for the docs)")
     args = p.parse_args()
     mi.set_log_level(mi.LogLevel.Error)       # the samplers' rounding warnings are in the table
+    samplers = tuple(args.samplers.split(","))
+    unknown = [s for s in samplers if s not in MITSUBA + PACKAGE]
+    if unknown or args.blocks < 1:
+        p.error("--samplers: unknown %s (choose from %s)" % (unknown, ", ".join(MITSUBA + PACKAGE)) if unknown
+                else "--blocks=%d: must be >= 1" % args.blocks)
     counts = []
     for spp in (int(s) for s in args.spp.split(",")):
         counts.append((spp, tuple(s for s in MITSUBA if spp not in ORTHOGONAL or s != "orthogonal")))
-        if spp in ORTHOGONAL:
+        if spp in ORTHOGONAL and "orthogonal" in samplers:
             counts.append((ORTHOGONAL[spp], ("independent", "orthogonal")))
     cases = args.cases.split(",")
     ref = rsm.reference("cornell", CORNELL_RES, CORNELL_REF_SPP) if "cornell_box" in cases else None
-    samplers = MITSUBA + PACKAGE
     header = ["case", "spp"] + list(samplers) + ["best of package / best of Mitsuba"]
     rows, t0 = [], time.perf_counter()
     for case_name in cases:
@@ -96,18 +129,24 @@ def main():
                 if s in MITSUBA and s not in mitsuba_here:
                     cells.append("")
                     continue
-                value, unbiased = measure(case_name, s, spp, args.runs, args.resolution, ref)
+                value, se, unbiased = measure_blocks(args.blocks, case_name, s, spp, args.runs, args.resolution,
+                                                     ref, args.rr_depth)
                 rmse[s] = value
+                unit = rmse.get("independent", 1.0)
                 mark = ("" if s in PACKAGE or rounded(s, spp) == spp else " (%d)" % rounded(s, spp)) \
                     + ("" if unbiased else " !")
-                cells.append("%.3f%s" % (value / rmse.get("independent", value), mark))
-            ours = min(rmse[s] for s in PACKAGE)
-            theirs = min(rmse[s] for s in mitsuba_here if s != "independent")
-            best = min(PACKAGE, key=rmse.get)
-            rows.append([case_name, str(spp)] + cells + ["%.3f (%s)" % (ours / theirs, best)])
+                cells.append(("%.3f" if unit != 1.0 else "%.5f") % (value / unit)
+                             + ("" if se is None else (" +- %.3f" if unit != 1.0 else " +- %.5f") % (se / unit))
+                             + mark)
+            ours = [s for s in PACKAGE if s in rmse]
+            theirs = [s for s in mitsuba_here if s != "independent" and s in rmse]
+            best = min(ours, key=rmse.get) if ours else None
+            rows.append([case_name, str(spp)] + cells + ["%.3f (%s)" % (rmse[best] / min(rmse[s] for s in theirs), best)
+                                                         if ours and theirs else ""])
             print("  ".join(rows[-1]), flush=True) if not args.markdown else None
-    print("# %.0f s, %d runs, analytic cases %d px, Cornell box %d px" % (time.perf_counter() - t0, args.runs,
-                                                                         args.resolution, CORNELL_RES))
+    print("# %.0f s, %d block(s) of %d runs, analytic cases %d px, Cornell box %d px%s"
+          % (time.perf_counter() - t0, args.blocks, args.runs, args.resolution, CORNELL_RES,
+             "" if args.rr_depth is None else ", rr_depth %d" % args.rr_depth))
     if args.markdown:
         print("| " + " | ".join(header) + " |\n|" + "---|" * len(header))
         for row in rows:

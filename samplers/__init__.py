@@ -11,6 +11,7 @@ PLUGINS = {
     "padded_sobol": "padded_sobol:PaddedSobolSampler",
     "zsobol": "zsobol:ZSobolSampler",
     "lattice": "lattice:LatticeSampler",
+    "cmj": "cmj:CMJSampler",
 }
 
 #: modules holding base classes of the plugins above (reloaded first on a variant switch)

@@ -14,7 +14,7 @@ dimensions get unrelated permutations.
 
 Subclasses change where the index comes from (``zsobol``: one global index over the
 image in z-order) through :meth:`PaddedSobolSampler._index_and_key`, or the point set
-of each padded dimension (``lattice``) through :meth:`PaddedSobolSampler._points`.
+of each padded dimension (``lattice``, ``cmj``) through :meth:`PaddedSobolSampler._points`.
 """
 import mitsuba as mi
 

@@ -1,5 +1,5 @@
 """Base class of the package's samplers (``halton``, ``sobol``, ``faure``; the padded
-``padded_sobol``, ``zsobol`` and ``lattice`` build on it in ``padded_sobol.py``).
+``padded_sobol``, ``zsobol``, ``lattice`` and ``cmj`` build on it in ``padded_sobol.py``).
 
 Mitsuba's protocol: ``sample_count()`` = N samples per pixel in total,
 ``set_samples_per_wavefront(k)`` (k per pixel per pass; N when not called),

@@ -14,7 +14,7 @@ EXPECTED_PLUGINS = {
     "integrator": ["qmc_lighttrace", "ray_bundle", "stochastic_ray"],
     "bsdf": ["phong", "separable"],
     "emitter": ["directional_area", "simulated_area"],
-    "sampler": ["faure", "halton", "lattice", "padded_sobol", "sobol", "zsobol"],
+    "sampler": ["cmj", "faure", "halton", "lattice", "padded_sobol", "sobol", "zsobol"],
 }
 
 

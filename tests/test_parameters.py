@@ -163,13 +163,13 @@ _SAMPLER = {
 }
 for _name in ("halton", "sobol", "faure"):
     TABLE[_name] = _SAMPLER
-for _name in ("padded_sobol", "zsobol", "lattice"):      # always randomised: no `scramble`
+for _name in ("padded_sobol", "zsobol", "lattice", "cmj"):      # always randomised: no `scramble`
     TABLE[_name] = {k: v for k, v in _SAMPLER.items() if k != "scramble"}
 
 KIND = {"qmc_lighttrace": "integrator", "stochastic_ray": "integrator", "ray_bundle": "integrator",
         "phong": "bsdf", "separable": "bsdf", "directional_area": "emitter", "simulated_area": "emitter",
         "halton": "sampler", "sobol": "sampler", "faure": "sampler", "padded_sobol": "sampler",
-        "zsobol": "sampler", "lattice": "sampler"}
+        "zsobol": "sampler", "lattice": "sampler", "cmj": "sampler"}
 
 #: parameters a plugin needs besides the one tested
 REQUIRED = {"separable": {"target_radiance": 2.0, "emission": Ref("lamp")},

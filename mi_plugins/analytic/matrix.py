@@ -86,7 +86,7 @@ RAY_BUNDLE_GLOSSY = ("narrow glossy lobe (roughconductor alpha 0.3): random pair
                      "RMSE 1.3); use stochastic_ray or path")
 
 #: this package's samplers, each with `path` in the matrix
-PACKAGE_SAMPLERS = ("sobol", "halton", "faure", "padded_sobol", "zsobol", "lattice")
+PACKAGE_SAMPLERS = ("sobol", "halton", "faure", "padded_sobol", "zsobol", "lattice", "cmj")
 #: Mitsuba 3.9.1's samplers; the first is the default (the rows without "+sampler")
 MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 #: Mitsuba 3.9.1 finding (README, "Findings"): samplers whose dimensions are coupled
