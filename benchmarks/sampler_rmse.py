@@ -12,19 +12,21 @@ in the table). A cell marked ``!`` failed the unbiasedness check at that budget
 means).
 
     python3 benchmarks/sampler_rmse.py [--spp 4,16,64] [--runs 8] [--resolution 16] [--markdown]
-        [--samplers a,b,...] [--blocks K] [--rr-depth D]
+        [--samplers a,b,...] [--blocks K] [--rr-depth D] [--cost]
 
 ``--blocks K`` repeats every cell over K disjoint blocks of ``--runs`` seeds and prints
 the mean and standard error of the K RMSEs (differences of 1-2 % between samplers need
 it: one block of 256 runs varies by about 1 %). ``--rr-depth`` sets `path`'s
 ``rr_depth`` (e.g. 1000: no Russian roulette), to separate the roulette's share of the
-error from the rest.
+error from the rest. ``--cost`` prints instead each sampler's render time relative to
+`independent` (the Cornell box at 128 x 128 px, 64 spp, `path`).
 """
 import argparse
 import os
 import sys
 import time
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -95,6 +97,30 @@ def rounded(sampler, spp):
     return int(mi.load_dict({"type": sampler, "sample_count": spp}).sample_count())
 
 
+def render_seconds(sampler, resolution=128, spp=64, repeats=3):
+    """Shortest wall time of `path` rendering the Cornell box with ``sampler`` (compiled
+    kernels: one render before timing)."""
+    d, _ = rsm.scene_dict("cornell", resolution)
+    d["sensor"]["sampler"] = {"type": sampler, "sample_count": spp}
+    scene, integrator = mi.load_dict(d), mi.load_dict({"type": "path"})
+    times = []
+    for k in range(repeats + 1):
+        t0 = time.perf_counter()
+        dr.eval(mi.render(scene, integrator=integrator, spp=spp, seed=k))
+        dr.sync_thread()
+        times.append(time.perf_counter() - t0)
+    return min(times[1:])
+
+
+def print_cost(samplers):
+    """Render time of every sampler relative to `independent` (Cornell box, 128 px, 64 spp)."""
+    base = render_seconds("independent")
+    print("| sampler | seconds | relative to independent |\n|---|---|---|")
+    for s in samplers:
+        t = base if s == "independent" else render_seconds(s)
+        print("| %s | %.3f | %.2f |" % (s, t, t / base))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--spp", default="4,16,64")
@@ -106,6 +132,8 @@ def main():
     p.add_argument("--blocks", type=int, default=1, help="disjoint blocks of --runs seeds per cell (mean +- SE)")
     p.add_argument("--rr-depth", type=int, default=None, help="`path`'s rr_depth (default: Mitsuba's)")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for the docs)")
+    p.add_argument("--cost", action="store_true",
+                   help="only the render time of each sampler relative to `independent` (Cornell box, 128 px, 64 spp)")
     args = p.parse_args()
     mi.set_log_level(mi.LogLevel.Error)       # the samplers' rounding warnings are in the table
     samplers = tuple(args.samplers.split(","))
@@ -113,6 +141,8 @@ def main():
     if unknown or args.blocks < 1:
         p.error("--samplers: unknown %s (choose from %s)" % (unknown, ", ".join(MITSUBA + PACKAGE)) if unknown
                 else "--blocks=%d: must be >= 1" % args.blocks)
+    if args.cost:
+        return print_cost(samplers)
     counts = []
     for spp in (int(s) for s in args.spp.split(",")):
         counts.append((spp, tuple(s for s in MITSUBA if spp not in ORTHOGONAL or s != "orthogonal")))
