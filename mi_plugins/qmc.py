@@ -163,9 +163,12 @@ def _reverse_bits(x):
     return (x >> 16) | (x << 16)
 
 
-def _owen(bits, key):
+def owen_scramble(bits, key):
     """Nested uniform (Owen) scramble of 32-bit fixed-point values by hashing
-    (Laine-Karras permutation applied to the bit-reversed value)."""
+    (Laine-Karras permutation applied to the bit-reversed value): the top bit is flipped
+    by the key, every lower bit by a hash of the key and the bits above it, so aligned
+    blocks of values map onto aligned blocks (used on Sobol coordinates, and by
+    ``zsobol`` on sample indices)."""
     x = _reverse_bits(bits) + key
     for m in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
         x ^= x * m
@@ -238,7 +241,7 @@ def sample(sequence, index, dim, dims=None, n=None, scramble=False, seed=0, rota
         x = _radical_inverse(index, d, sequence == "faure", scramble_key)
     elif sequence == "sobol":
         bits = _sobol_bits(index, d)
-        x = to_unit(_owen(bits, key) if scramble else bits)
+        x = to_unit(owen_scramble(bits, key) if scramble else bits)
     elif sequence == "hammersley":
         if n is None or int(n) < 1:
             raise ValueError("hammersley: n=%r must be >= 1" % (n,))
