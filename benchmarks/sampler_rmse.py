@@ -56,10 +56,15 @@ def analytic_case(name, resolution, rr_depth=None):
     return analytic.bekaert("box", resolution=resolution), path_dict(rr_depth)
 
 
-def cornell(sampler, spp, runs, ref, block=0, rr_depth=None):
-    d, _ = rsm.scene_dict("cornell", CORNELL_RES)
+def cornell_scene(sampler, spp, resolution=CORNELL_RES, rr_depth=None):
+    """(scene, `path`) of the measured Cornell box with ``sampler`` at ``spp``."""
+    d, _ = rsm.scene_dict("cornell", resolution)
     d["sensor"]["sampler"] = {"type": sampler, "sample_count": spp}
-    scene, integrator = mi.load_dict(d), mi.load_dict(path_dict(rr_depth))
+    return mi.load_dict(d), mi.load_dict(path_dict(rr_depth))
+
+
+def cornell(sampler, spp, runs, ref, block=0, rr_depth=None):
+    scene, integrator = cornell_scene(sampler, spp, rr_depth=rr_depth)
     image, ref_var = ref
     errors, means = [], []
     for j in range(block * runs, (block + 1) * runs):
@@ -100,9 +105,7 @@ def rounded(sampler, spp):
 def render_seconds(sampler, resolution=128, spp=64, repeats=3):
     """Shortest wall time of `path` rendering the Cornell box with ``sampler`` (compiled
     kernels: one render before timing)."""
-    d, _ = rsm.scene_dict("cornell", resolution)
-    d["sensor"]["sampler"] = {"type": sampler, "sample_count": spp}
-    scene, integrator = mi.load_dict(d), mi.load_dict({"type": "path"})
+    scene, integrator = cornell_scene(sampler, spp, resolution)
     times = []
     for k in range(repeats + 1):
         t0 = time.perf_counter()
@@ -162,12 +165,11 @@ def main():
                 value, se, unbiased = measure_blocks(args.blocks, case_name, s, spp, args.runs, args.resolution,
                                                      ref, args.rr_depth)
                 rmse[s] = value
-                unit = rmse.get("independent", 1.0)
+                relative = "independent" in rmse              # else absolute RMSE
+                unit, digits = (rmse["independent"], "%.3f") if relative else (1.0, "%.5f")
                 mark = ("" if s in PACKAGE or rounded(s, spp) == spp else " (%d)" % rounded(s, spp)) \
                     + ("" if unbiased else " !")
-                cells.append(("%.3f" if unit != 1.0 else "%.5f") % (value / unit)
-                             + ("" if se is None else (" +- %.3f" if unit != 1.0 else " +- %.5f") % (se / unit))
-                             + mark)
+                cells.append(digits % (value / unit) + ("" if se is None else " +- " + digits % (se / unit)) + mark)
             ours = [s for s in PACKAGE if s in rmse]
             theirs = [s for s in mitsuba_here if s != "independent" and s in rmse]
             best = min(ours, key=rmse.get) if ours else None

@@ -22,8 +22,6 @@ instead (one digit is a 2 x 2 quad of its Morton order); along rows that gains n
 over the base-2 scramble, which costs one hash per call instead of a table permutation
 per digit.
 """
-import mitsuba as mi
-
 from mi_plugins import qmc
 from mi_plugins.samplers.padded_sobol import PaddedSobolSampler
 from mi_plugins.samplers.sequence_sampler import reference
@@ -56,10 +54,9 @@ class ZSobolSampler(PaddedSobolSampler):
         return super()._copy_state(other)
 
     def _index_and_key(self):
-        # the pixel's samples in a random order of their own per dimension (as padded_sobol),
-        # so that the scramble's nesting does not pair the samples of different dimensions
-        order = mi.permute_kensler(self.sample_index, int(self.sample_count()),
-                                   qmc.hash32(self.pixel, self.dimension, self.base_seed))
+        # the pixel's samples in padded_sobol's random order of their own per dimension, so
+        # that the scramble's nesting does not pair the samples of different dimensions
+        order, _ = super()._index_and_key()
         g = (self.pixel << self.sample_bits) | order
         key = qmc.hash32(self.dimension, self.base_seed)          # one key per dimension, whole image
         if self.index_bits == 0:                                  # one pixel, one sample

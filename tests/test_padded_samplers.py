@@ -41,19 +41,6 @@ def test_package_samplers_are_unbiased(sampler, spp):
     assert res.passed, res
 
 
-@pytest.mark.parametrize("integrator", ["volpath", "ptracer", "prb"])
-@pytest.mark.parametrize("sampler", PADDED)
-def test_padded_samplers_with_mitsubas_other_integrators(sampler, integrator):
-    """Each padded sampler with `volpath`, the light tracer `ptracer` (whose wavefront
-    is not one lane per pixel sample) and `prb` on the Sierpinski case of Bekaert's
-    paper (the older samplers: tests/test_samplers.py)."""
-    case = analytic.bekaert("sierpinski", resolution=16)
-    spp = 128 if integrator == "ptracer" else 16
-    res = analytic.check(case, {"type": integrator, "max_depth": -1}, spp=spp, runs=16, seed=budget.seed(14),
-                         sampler={"type": sampler})
-    assert res.passed, res
-
-
 @pytest.mark.parametrize("spp", [4, 16, 64])
 @pytest.mark.parametrize("sampler", PACKAGE + ("independent",))
 def test_dimensions_of_one_sample_are_independent(sampler, spp):
