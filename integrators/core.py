@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
+from mi_plugins import seeds, support
 from mi_plugins.params import Params
 from mi_plugins.integrators.camera import CameraPass
 from mi_plugins.progress import Progress, Steps
@@ -59,7 +59,13 @@ def parameter_requiring_gradients(scene):
     with dr.resume_grad():
         params = mi.traverse(scene)
         for key in params.keys():
-            if (params.flags(key) & mi.ParamFlags.NonDifferentiable) == 0 and dr.grad_enabled(params[key]):
+            if (params.flags(key) & mi.ParamFlags.NonDifferentiable) != 0:
+                continue
+            try:
+                value = params[key]
+            except TypeError:   # a parameter Mitsuba exposes without a value (e.g. 'hair')
+                continue
+            if value is not None and dr.grad_enabled(value):
                 return key
     return None
 
@@ -70,11 +76,20 @@ def gradients_error(plugin, key):
                                "derivatives with %s" % (plugin, key, plugin, DIFFERENTIABLE))
 
 
+def coverage(scene, si, hide_emitters):
+    """The film's alpha of camera rays that reach ``si``, as Mitsuba's integrators make it:
+    1 where the ray hits a surface, and everywhere when the scene has an environment
+    emitter that is not hidden."""
+    if scene.environment() is not None and not hide_emitters:
+        return dr.full(mi.Bool, True, dr.width(si.t))
+    return si.is_valid()
+
+
 class Frame:
     """The state of one render (see the module docstring)."""
 
-    def __init__(self, scene, sensor, spp, seed):
-        self.scene, self.sensor, self.spp, self.seed = scene, sensor, int(spp), int(seed)
+    def __init__(self, scene, sensor, spp, seed, plugin="integrator"):
+        self.scene, self.sensor, self.spp, self.seed, self.plugin = scene, sensor, int(spp), int(seed), plugin
         self.film = sensor.film()
         self.film.prepare([])
         size = self.film.crop_size()
@@ -83,7 +98,9 @@ class Frame:
         self._blocks = {}        # name -> (block, light scale or None)
         self._committed = {}
         self._sampler = None
+        self._seed_per_pass = False
         self._coverage = None    # see _edge_coverage
+        self._alpha_block = None  # the camera block that carries the film's alpha (put_camera)
 
     # ------------------------------------------------------------------ camera samples
     def camera_passes(self, per_pixel, passes):
@@ -92,19 +109,41 @@ class Frame:
         low-discrepancy sampler gives every pixel one well-distributed sample set over all
         the passes."""
         sampler = self.sensor.sampler().clone()
-        sampler.set_sample_count(int(per_pixel) * max(int(passes), 1))
-        sampler.set_samples_per_wavefront(int(per_pixel))
+        per_pixel, passes = int(per_pixel), max(int(passes), 1)
+        sampler.set_sample_count(per_pixel * passes)
+        if sampler.sample_count() != per_pixel * passes:
+            # the sampler rounds the count (stratified, multijitter: to squares; orthogonal:
+            # to squares of primes): one pass takes the rounded count, as Mitsuba's own
+            # integrators do; several passes are seeded one by one (camera_pass)
+            rounded = int(sampler.sample_count())
+            if passes == 1:
+                per_pixel = rounded
+            else:
+                sampler.set_sample_count(per_pixel)
+                if sampler.sample_count() != per_pixel:
+                    raise support.Unsupported(
+                        self.plugin, support.plugin_name(sampler),
+                        "the sensor's sampler '%s' with %d camera samples per pixel and pass"
+                        % (support.plugin_name(sampler), per_pixel),
+                        "it rounds the count to %d, and this integrator needs exactly %d per pass (one per chain)"
+                        % (int(sampler.sample_count()), per_pixel),
+                        "use a count this sampler keeps (e.g. a square for 'stratified'), or the 'independent', "
+                        "'multijitter' or 'ldsampler' sampler")
+                self._seed_per_pass = True
+        sampler.set_samples_per_wavefront(per_pixel)
         film = self.film
         border = film.rfilter().border_size() if film.sample_border() else 0
-        lanes = (self.width + 2 * border) * (self.height + 2 * border) * int(per_pixel)
+        lanes = (self.width + 2 * border) * (self.height + 2 * border) * per_pixel
         if lanes >= 1 << 32:
             raise ValueError("%d camera samples per pass exceed 2^32: use fewer samples per pixel" % lanes)
         sampler.seed(seeds.stream(self.seed, "camera"), lanes)
-        self._sampler, self._per_pixel, self._passes_begun = sampler, int(per_pixel), 0
+        self._sampler, self._per_pixel, self._passes_begun, self._lanes = sampler, per_pixel, 0, lanes
 
     def camera_pass(self):
         """The next pass of camera samples (after :meth:`camera_passes`)."""
-        if self._passes_begun > 0:
+        if self._passes_begun > 0 and self._seed_per_pass:
+            self._sampler.seed(seeds.stream(self.seed, "camera", self._passes_begun), self._lanes)
+        elif self._passes_begun > 0:
             self._sampler.advance()
         self._passes_begun += 1
         return CameraPass(self, self._sampler, self._per_pixel)
@@ -139,15 +178,23 @@ class Frame:
             values = [rgb.x, rgb.y, rgb.z, mi.Float(weight)]
         block.put(pos, values, active)
 
-    def put_camera(self, cam, value, name="camera", alpha=1.0):
+    def put_camera(self, cam, value, name="camera", coverage=None):
         """Average ``value`` (Color3f per camera sample of ``cam``) into a camera block
-        (every sample counts, with weight 1)."""
+        (every sample counts, with weight 1). ``coverage`` (Bool per sample: the camera
+        ray hit a surface) makes the film's alpha channel, as in Mitsuba's integrators;
+        only the first block given it carries alpha (the others put 0), so that the
+        developed blocks sum to one alpha."""
+        if coverage is not None and self._alpha_block in (None, name):
+            self._alpha_block = name
+            alpha = dr.select(coverage, 1.0, 0.0)
+        else:
+            alpha = 0.0
         self._put(self.camera_block(name), cam.pos, mi.Color3f(value) * cam.weight, alpha, 1.0)
 
     def put_light(self, uv, value, name="light", scale=1.0, active=True):
         """Splat ``value`` at film positions ``uv`` into a light block (weight 0)."""
         block = self.light_block(name, scale)
-        self._put(block, uv + mi.Vector2f(block.offset()), mi.Color3f(value), 1.0, 0.0, active)
+        self._put(block, uv + mi.Vector2f(block.offset()), mi.Color3f(value), 0.0, 0.0, active)
 
     def state(self):
         """What an iteration's dr.eval must evaluate: the blocks, and the camera sampler's
@@ -292,7 +339,10 @@ class CoreIntegrator(mi.SamplingIntegrator):
         key = parameter_requiring_gradients(scene)
         if key is not None:
             raise gradients_error(self.plugin, key)
-        frame = Frame(scene, sensor, spp, seed)
+        self.check_scene(scene, sensor)
+        if not isinstance(seed, int):      # a wrapping integrator ('aov') passes its seed as an array
+            seed = int(dr.ravel(seed)[0]) if dr.width(seed) else 0
+        frame = Frame(scene, sensor, spp, seed, self.plugin)
         with dr.suspend_grad():
             if self.iterative:
                 self.render_frame(frame)
@@ -304,6 +354,12 @@ class CoreIntegrator(mi.SamplingIntegrator):
     def render_frame(self, frame):
         raise NotImplementedError
 
+    def check_scene(self, scene, sensor):
+        """Refuse what the integrator cannot render right, before any work
+        (:class:`mi_plugins.support.Unsupported`). Every package integrator refuses
+        participating media; a plugin adds its own checks."""
+        support.refuse_media(self.plugin, scene, sensor)
+
     def render_forward(self, scene, *args, **kwargs):
         """Not differentiable (see :func:`parameter_requiring_gradients`): refused."""
         raise gradients_error(self.plugin, parameter_requiring_gradients(scene) or "given to mi.render")
@@ -314,4 +370,12 @@ class CoreIntegrator(mi.SamplingIntegrator):
         return "%s[%s]" % (type(self).__name__, self.plugin)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        raise RuntimeError("%s renders whole images; use mi.render(scene)" % self.plugin)
+        """Called per camera ray by integrators that wrap another one (``aov``,
+        ``moment``): the package's integrators estimate whole images (light paths,
+        iterations over the whole scene), not one camera ray at a time."""
+        raise support.Unsupported(
+            self.plugin, "aov/moment", "being wrapped by an integrator that calls it once per camera ray ('aov', "
+            "'moment')", "%s estimates whole images (light paths and iterations over the whole scene), not the "
+            "radiance of one camera ray" % self.plugin,
+            "render %s alone with mi.render, and the AOVs or moments with 'aov' / 'moment' around Mitsuba's "
+            "'path'" % self.plugin)

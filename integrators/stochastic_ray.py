@@ -3,10 +3,15 @@
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import seeds
-from mi_plugins.integrators.camera import specular_chain
-from mi_plugins.integrators.core import CoreIntegrator
+from mi_plugins import seeds, support
+from mi_plugins.integrators.core import CoreIntegrator, coverage
+from mi_plugins.integrators.handoff import Handoff
+from mi_plugins.lights import sample_light_rays
 from mi_plugins.params import Params
+
+#: emitted rays start this far (relative to 1 + their largest coordinate) off the light,
+#: as Mitsuba's spawn_ray offsets rays off a surface
+SPAWN_EPSILON = 1e-4
 
 
 class StochasticRayIntegrator(CoreIntegrator):
@@ -72,111 +77,153 @@ class StochasticRayIntegrator(CoreIntegrator):
 
     plugin = "stochastic_ray"
     iterative = True
+    #: sensors whose importance light paths can reach (Mitsuba implements their sample_direction)
+    SENSORS = ("perspective", "thinlens", "batch")
 
     def __init__(self, props=mi.Properties()):
         super().__init__(props)
         p = Params(props, "stochastic_ray")
         self.read_iterations(p, 32)
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
+        self.handoff = Handoff(self.max_depth)
 
     def iteration_count(self, spp):
         """Iterations (transport steps) of a render with ``spp``: spp scales the number of
         chains, not the number of steps."""
         return self.iterations
 
+    def check_scene(self, scene, sensor):
+        super().check_scene(scene, sensor)
+        for cls in sorted(support.nested_classes(sensor)):
+            name = support.PLUGIN_OF_CLASS.get(cls)
+            if name is not None and name in support.SENSOR_PLUGINS and name not in self.SENSORS:
+                raise support.Unsupported(
+                    self.plugin, name, support.describe(sensor, "sensor") if name == support.plugin_name(sensor)
+                    else "the sensor '%s' inside %s" % (name, support.describe(sensor, "sensor")),
+                    "light paths reach the camera by connecting to it, and Mitsuba gives no connection "
+                    "(sample_direction) for this sensor: its directions form a delta distribution or it has no "
+                    "aperture to connect to", "render it with 'path', or with 'ray_bundle' / 'qmc_lighttrace', "
+                    "which trace camera rays")
+
     # ------------------------------------------------------------------ light rays
-    def _emitted_power(self, scene, seed, eps):
+    def _emitted_power(self, scene, seed):
         """A fixed positive scalar estimate of the total emitted power (only steers the
         restart probability; any positive value keeps the estimator unbiased)."""
         if not scene.emitters():
             return 1e-8
         rng = seeds.pcg(1 << 14, seed, "power")
-        _, w = self._light_ray(scene, rng, mi.Bool(True), eps)
+        _, w = self._light_ray(scene, rng, mi.Bool(True))
         return max(float(dr.mean((dr.abs(w.x) + dr.abs(w.y) + dr.abs(w.z)) / 3.0, axis=None)[0]), 1e-8)
 
-    def _light_ray(self, scene, rng, active, eps):
-        ray, weight, _ = scene.sample_emitter_ray(0.0, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
-                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), active)
-        # emitted rays start exactly on the surface: step off it to avoid a self-intersection
-        return mi.Ray3f(ray.o + ray.d * eps, ray.d), dr.select(active, mi.Color3f(weight), 0.0)
+    @staticmethod
+    def _light_ray(scene, rng, active):
+        ray, power = sample_light_rays(scene, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
+                                       mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+        # emitted rays start exactly on the surface: step off it as spawn_ray does off a hit
+        eps = SPAWN_EPSILON * (1.0 + dr.max(dr.abs(ray.o)))
+        return mi.Ray3f(ray.o + ray.d * eps, ray.d), power
 
     # ------------------------------------------------------------------ render
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
         chains = frame.spp * frame.pixels
-        if self.max_depth != 0:
-            # the emission seen from the camera (through specular chains): M(L^e) of every step
-            frame.camera_passes(frame.spp, 1)
-            cam = frame.camera_pass()
-            path = specular_chain(scene, cam.ray, seeds.pcg(cam.count, seed, "camera_path"), self.max_depth,
-                                  hide_emitters=self.hide_emitters)
-            frame.put_camera(cam, path.emission)
-        eps = 1e-4 * max(float(dr.norm(scene.bbox().extents())), 1e-3)
+        self._camera_paths(frame)
         # opaque: a new value (other seed, simulated emission) must not recompile the step kernel
-        phi_e = dr.opaque(mi.Float, self._emitted_power(scene, seed, eps))
+        phi_e = dr.opaque(mi.Float, self._emitted_power(scene, seed))
         rng = seeds.pcg(chains, seed, "light")
-        ray, power = self._light_ray(scene, rng, mi.Bool(True), eps)
-        depth = dr.zeros(mi.UInt32, chains)        # surface hits of the current light path so far
+        # loop state of the chains
+        ray, power = self._light_ray(scene, rng, mi.Bool(True))   # the carried ray and the power it carries
+        depth = dr.zeros(mi.UInt32, chains)                        # surface hits of the light path so far
         steps = self.steps(self.iterations, self.burn_in)
         # each averaged step's splats estimate the image once per chain and pixel
         scale = lambda: frame.pixels / (chains * max(self.progress.averaged, 1))
         frame.light_block("light", scale)
         try:
             for it in steps.iterations():
-                ray, power, depth = self._step(frame, ray, power, depth, rng, phi_e, it >= self.burn_in, eps)
+                ray, power, depth = self._step(frame, ray, power, depth, rng, phi_e, it >= self.burn_in)
                 dr.eval(ray, power, depth, rng.state, frame.state())
                 frame.commit()
         except KeyboardInterrupt:
             steps.stop()  # Ctrl-C: keep the finished iterations
             frame.rollback()
 
-    def _step(self, frame, ray, power, depth, rng, phi_e, do_splat, eps):
+    def _camera_paths(self, frame):
+        """The camera's share of every step, M(L^e) plus what no connection reaches: the
+        emission of the first surface each camera ray meets (or of the environment), and
+        the light reaching that surface's delta and null lobes (mirrors, glass, null and
+        mask surfaces), continued by Mitsuba's path (:class:`Handoff`). Its alpha channel
+        is the camera rays' coverage."""
+        scene = frame.scene
+        frame.camera_passes(frame.spp, 1)
+        cam = frame.camera_pass()
+        si = scene.ray_intersect(cam.ray)
+        value = mi.Color3f(0.0)
+        if self.max_depth != 0:
+            seen = mi.Bool(True) if not self.hide_emitters else mi.Bool(False)
+            value += dr.select(seen, mi.Color3f(si.emitter(scene, seen).eval(si, seen)), 0.0)
+            value += self.handoff.sample(scene, cam.sampler, si, si.bsdf(cam.ray), 1, si.is_valid())
+        frame.put_camera(cam, value, coverage=coverage(scene, si, self.hide_emitters))
+
+    def _step(self, frame, ray, power, depth, rng, phi_e, do_splat):
         """One transport step on every lane: trace the carried ray, splat the hit point to
-        the camera, then pick the next ray (restart from the lights or continue)."""
+        the camera, then pick the next ray (restart from the lights or continue).
+
+        The BSDF is evaluated as Mitsuba's path tracer evaluates it on the same path (at
+        the hit, with the direction toward the camera side as wi and toward the light as
+        wo), so that shading normals, bump and normal maps and non-reciprocal BSDFs give
+        path's result; the geometric cosine of the light's side, already in the particle
+        density, is divided out (Veach's adjoint correction, written for any BSDF)."""
         scene, sensor = frame.scene, frame.sensor
         max_depth = self.max_depth if self.max_depth >= 0 else (1 << 30)
-        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        radiance = mi.BSDFContext(mi.TransportMode.Radiance)
         carries = dr.any(power != 0)   # (simulated emitters may give negative power samples)
         si = scene.ray_intersect(ray, carries)
         hit = si.is_valid() & carries
         depth_hit = depth + 1
-        # --- one BSDF call evaluates toward the camera (image estimate) and samples the
-        #     continuation direction
+        bsdf = si.bsdf(ray)
+        to_light = si.wi                                    # local, toward where the particle came from
+        cos_light = dr.abs(dr.dot(si.n, si.to_world(to_light)))
+        # --- image estimate: connect the new hit point to the camera
         can_splat = hit & (depth_hit + 1 <= max_depth) & do_splat
         ds, sensor_w = sensor.sample_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), can_splat)
-        to_camera = si.to_local(ds.d)
-        bsdf = si.bsdf(ray)
-        f_camera, _, bs, w = bsdf.eval_pdf_sample(ctx, si, to_camera, rng.next_float32(),
-                                                  mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
-        # --- image estimate: connect the new hit point to the camera
-        visible = can_splat & (ds.pdf > 0) & geometric_side_consistent(si, to_camera)
+        visible = can_splat & (ds.pdf > 0)
         visible &= ~scene.ray_test(si.spawn_ray_to(ds.p), visible)
-        value = mi.Color3f(f_camera) * power * mi.Color3f(sensor_w) * shading_normal_correction(si, to_camera)
-        frame.put_light(ds.uv, value, "light", active=visible)
-        # --- next ray: continue from the hit (BSDF sampled) or restart from the lights
-        w = mi.Color3f(w) * shading_normal_correction(si, bs.wo)
-        can_continue = hit & geometric_side_consistent(si, bs.wo) & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
+        value = self._path_weight(si, bsdf, radiance, si.to_local(ds.d), to_light, cos_light, visible)
+        frame.put_light(ds.uv, value * power * mi.Color3f(sensor_w), "light", active=visible)
+        # --- next ray: a BSDF sample, weighted as path weights the same path
+        bs, w = bsdf.sample(mi.BSDFContext(mi.TransportMode.Importance), si, rng.next_float32(),
+                            mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        smooth_w = self._path_weight(si, bsdf, radiance, bs.wo, to_light, cos_light, hit & ~delta)
+        w = dr.select(delta, mi.Color3f(w) * shading_normal_correction(si, bs.wo),
+                      smooth_w / dr.select(bs.pdf > 0, bs.pdf, 1.0))
+        can_continue = hit & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
         cont = dr.select(can_continue, power * w, 0.0)
         cont_s = (dr.abs(cont.x) + dr.abs(cont.y) + dr.abs(cont.z)) / 3.0
         p_restart = phi_e / (phi_e + cont_s)
         restart = rng.next_float32() < p_restart
-        light_ray, light_power = self._light_ray(scene, rng, restart, eps)
+        light_ray, light_power = self._light_ray(scene, rng, restart)
         new_ray = dr.select(restart, light_ray, si.spawn_ray(si.to_world(bs.wo)))
         new_power = dr.select(restart, light_power / p_restart, cont / dr.maximum(1.0 - p_restart, 1e-12))
         return new_ray, new_power, dr.select(restart, 0, depth_hit)
 
-
-def geometric_side_consistent(si, wo_local):
-    """Both si.wi and ``wo_local`` lie on the same side of the geometric and the shading
-    normal (otherwise adjoint transport through shading normals leaks light)."""
-    wi_geo = dr.dot(si.n, si.to_world(si.wi))
-    wo_geo = dr.dot(si.n, si.to_world(wo_local))
-    return (wi_geo * mi.Frame3f.cos_theta(si.wi) > 0) & (wo_geo * mi.Frame3f.cos_theta(wo_local) > 0)
+    @staticmethod
+    def _path_weight(si, bsdf, ctx, toward_camera, to_light, cos_light, active):
+        """f(toward_camera, to_light) |cos_sh(to_light)| |cos_geo(toward_camera)| /
+        |cos_geo(to_light)|: what the particle's power is multiplied by when it leaves
+        the hit toward ``toward_camera`` (local), evaluated with the camera-side
+        direction as wi, as a path tracer does."""
+        at = mi.SurfaceInteraction3f(si)
+        at.wi = toward_camera
+        f = mi.Color3f(bsdf.eval(ctx, at, to_light, active))
+        cos_camera = dr.abs(dr.dot(si.n, si.to_world(toward_camera)))
+        return dr.select(active & (cos_light > 0), f * cos_camera / dr.select(cos_light > 0, cos_light, 1.0), 0.0)
 
 
 def shading_normal_correction(si, wo_local):
     """|cos_sh(wi) cos_geo(wo) / (cos_sh(wo) cos_geo(wi))|: the adjoint BSDF correction
-    for shading normals (Veach 1997, p. 158)."""
+    for shading normals (Veach 1997, p. 158), for the delta lobes (which cannot be
+    evaluated; their Importance-mode sample weight is the adjoint's)."""
     wi_geo = dr.dot(si.n, si.to_world(si.wi))
     wo_geo = dr.dot(si.n, si.to_world(wo_local))
     return dr.abs(mi.Frame3f.cos_theta(si.wi) * wo_geo

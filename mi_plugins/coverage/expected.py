@@ -1,0 +1,43 @@
+"""How the coverage matrix runs each package integrator, and what every cell must give.
+
+Every cell is expected to PASS unless listed here: REFUSED (the refusal's text must
+match: it names the integrator and the feature) or N/A (a documented reason).
+"""
+from dataclasses import dataclass, field
+
+from mi_plugins.conformance.outcomes import PASS, NotApplicable, Refused
+
+
+@dataclass
+class Spec:
+    """``params``: the integrator dict (``max_depth`` is set per row); ``spp`` and
+    ``runs``: the budget of a cell (``spp`` times the row's ``spp_scale`` where
+    ``scale_spp``); ``row_params`` / ``row_spp``: per-row changes; ``refused``: {row:
+    pattern}; ``na``: {row: reason}."""
+    name: str
+    params: dict
+    spp: int
+    runs: int = 8
+    scale_spp: bool = True
+    row_params: dict = field(default_factory=dict)
+    row_spp: dict = field(default_factory=dict)
+    refused: dict = field(default_factory=dict)
+    na: dict = field(default_factory=dict)
+
+
+STOCHASTIC_RAY = Spec("stochastic_ray", {"type": "stochastic_ray", "iterations": 24, "burn_in": 8}, spp=32)
+RAY_BUNDLE = Spec("ray_bundle", {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12,
+                                 "burn_in": 6}, spp=1, scale_spp=False)
+QMC_LIGHTTRACE = Spec("qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 20000}, spp=64)
+
+INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE)}
+
+
+def expected(row, integrator):
+    """PASS, a :class:`Refused` or a :class:`NotApplicable` for the cell."""
+    spec = INTEGRATORS[integrator]
+    if row.key in spec.na:
+        return NotApplicable(spec.na[row.key])
+    if row.key in spec.refused:
+        return Refused(spec.refused[row.key])
+    return PASS

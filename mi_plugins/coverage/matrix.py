@@ -1,0 +1,196 @@
+"""Run the coverage matrix: every row of :mod:`.rows` against every package integrator.
+
+A cell loads its row's scene with the integrator (wrapped by the row's integrator
+plugin, for ``aov`` and ``moment``), renders ``runs`` images with disjoint seeds, and
+compares them with the row's reference integrator (``path``, ``volpath`` for media,
+``ptracer`` where ``path`` cannot see the light) by the conformance statistics
+(:func:`mi_plugins.conformance.compare.compare`). The outcome is
+
+- **PASS**: the comparison passes;
+- **REFUSED**: the integrator raised :class:`mi_plugins.support.Unsupported` (or a
+  parameter / shape error of the package) whose message names the integrator and the
+  feature, before rendering anything;
+- **N/A**: the row cannot be built here (its reason), or the integrator does not
+  apply by design (its documented reason);
+- **FAIL**: anything else: a wrong image, an unclear error, a crash, a refusal where a
+  render was expected (or the reverse), or a cell over :data:`SLOWNESS_LIMIT` times the
+  reference's seconds per run.
+
+The expected outcome of every cell is in :mod:`.expected`; a cell whose outcome is not
+the expected one fails the suite.
+"""
+import gc
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.conformance import compare as comparison
+from mi_plugins.conformance import outcomes
+from mi_plugins.conformance.runner import _seeds
+from mi_plugins.coverage import expected as expectations
+from mi_plugins.coverage.rows import all_rows
+
+#: a cell slower than this many times the reference's seconds per run is a failure
+SLOWNESS_LIMIT = 20.0
+#: film size of the cells (pixels per side)
+RESOLUTION = 8
+#: runs of the integrator and of the reference (quick: half)
+RUNS = 8
+REFERENCE_RUNS = 8
+REFERENCE_SPP = 512
+
+_ROWS = None
+_REFERENCES = {}
+
+
+def rows():
+    global _ROWS
+    if _ROWS is None:
+        _ROWS = all_rows()
+    return _ROWS
+
+
+@dataclass
+class Cell:
+    row: str
+    integrator: str
+    expected: str = outcomes.PASS
+    outcome: str = outcomes.FAIL
+    reason: str = ""
+    mean: float = float("nan")
+    ref_mean: float = float("nan")
+    z: float = float("nan")
+    power: float = float("nan")
+    tolerance: float = float("nan")
+    seconds: float = 0.0          # per run of the integrator
+    ref_seconds: float = 0.0      # per run of the reference
+    runs: int = 0
+    spp: int = 0
+    warnings: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
+
+    @property
+    def ok(self):
+        return self.outcome == self.expected
+
+    @property
+    def slowness(self):
+        return self.seconds / self.ref_seconds if self.ref_seconds > 0 else float("nan")
+
+    def as_dict(self):
+        d = dict(self.__dict__, ok=self.ok, slowness=self.slowness)
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+    def __repr__(self):
+        head = "%s %s x %s" % (self.outcome, self.row, self.integrator)
+        if not self.ok:
+            head += " (expected %s)" % self.expected
+        if math.isnan(self.mean):
+            return head + ": " + (self.reason or "; ".join(self.failures))
+        return ("%s: mean %.5g, reference %.5g (z %+.2f, detects %.2g %%), %.2f s per run (%.1fx the reference)%s"
+                % (head, self.mean, self.ref_mean, self.z, 100 * self.power, self.seconds, self.slowness,
+                   "".join("\n  - " + f for f in self.failures)))
+
+
+def _render(scene_dict, integrator_dict, spp, seeds):
+    """(images (runs, H, W, C), seconds per run, warnings); images are float64."""
+    with warnings.catch_warnings(record=True) as records:
+        warnings.simplefilter("always")
+        scene = mi.load_dict(scene_dict)
+        integ = mi.load_dict(integrator_dict)
+        t0 = time.perf_counter()
+        images = [np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=s), dtype=np.float64)
+                  for s in seeds]
+        seconds = (time.perf_counter() - t0) / max(len(seeds), 1)
+        caught = sorted({str(w.message) for w in records})
+    del scene, integ
+    return np.stack(images), seconds, caught
+
+
+def depth_of(row):
+    return -1 if row.max_depth is None else int(row.max_depth)
+
+
+def reference(row_key, resolution=RESOLUTION, seed=0, quick=False):
+    """The row's reference renders (cached per process): (images, seconds per run)."""
+    row = rows()[row_key]
+    runs = max(REFERENCE_RUNS // 2, 4) if quick else REFERENCE_RUNS
+    spp = int(REFERENCE_SPP * row.spp_scale)
+    key = (row_key, resolution, seed, runs, spp)
+    if key not in _REFERENCES:
+        build = row.reference_scene or row.build
+        integ = {"type": row.reference, "max_depth": depth_of(row)}
+        images, seconds, _ = _render(build(resolution), integ, spp, _seeds(seed, runs, 1))
+        _REFERENCES[key] = (images, seconds)
+    return _REFERENCES[key]
+
+
+def clear_references():
+    _REFERENCES.clear()
+
+
+def cell_integrator(row, name, quick=False):
+    """(integrator dict, spp, runs) of the cell (row, integrator ``name``)."""
+    spec = expectations.INTEGRATORS[name]
+    params = dict(spec.params, max_depth=depth_of(row))
+    params.update(spec.row_params.get(row.key, {}))
+    if row.wrap is not None:
+        params = row.wrap(params)
+    spp = int(spec.spp * spec.row_spp.get(row.key, 1) * (row.spp_scale if spec.scale_spp else 1))
+    runs = spec.runs
+    return params, max(spp, 1), max(runs // 2, 4) if quick else runs
+
+
+def run(row_key, integrator, seed=0, resolution=RESOLUTION, quick=False, runs=None):
+    """Run one cell; returns a :class:`Cell`."""
+    row = rows()[row_key]
+    expect = expectations.expected(row, integrator)
+    cell = Cell(row=row_key, integrator=integrator, expected=outcomes.expected_label(expect))
+    if row.na is not None or isinstance(expect, outcomes.NotApplicable):
+        cell.outcome, cell.reason = outcomes.NA, row.na or expect.reason
+        if cell.expected != outcomes.NA:
+            cell.failures.append("N/A, but %s was expected" % cell.expected)
+        return cell
+    params, spp, default_runs = cell_integrator(row, integrator, quick)
+    cell.runs, cell.spp = int(runs or default_runs), spp
+    try:
+        images, cell.seconds, cell.warnings = _render(row.build(resolution), params, spp,
+                                                      _seeds(seed, cell.runs, 0))
+    except Exception as exc:        # a refusal, or a crash
+        text, cell.reason = outcomes.describe_error(exc)
+        gc.collect()                # drop the failed scene (Dr.Jit traces every live plugin instance)
+        if isinstance(expect, outcomes.Refused) and expect.matches(text):
+            cell.outcome = outcomes.REFUSED
+        else:
+            cell.failures.append("raised %s%s" % (cell.reason, ", not the expected refusal /%s/" % expect.pattern
+                                                  if isinstance(expect, outcomes.Refused) else ""))
+        return cell
+    ref, cell.ref_seconds = reference(row_key, resolution, seed, quick)
+    out = comparison.compare(images, ref)
+    for key in ("mean", "ref_mean", "z", "power", "tolerance"):
+        setattr(cell, key, out[key])
+    cell.failures += out["failures"]
+    if isinstance(expect, outcomes.Refused):
+        cell.failures.append("rendered, but a refusal matching /%s/ was expected" % expect.pattern)
+    if cell.slowness > SLOWNESS_LIMIT:
+        cell.failures.append("%.2f s per run: %.0fx the reference's %.3f s (limit %gx)"
+                             % (cell.seconds, cell.slowness, cell.ref_seconds, SLOWNESS_LIMIT))
+    cell.outcome = outcomes.PASS if not cell.failures else outcomes.FAIL
+    return cell
+
+
+def run_all(integrators=None, row_keys=None, seed=0, quick=False, progress=None):
+    """Every selected cell, row by row; ``progress(cell)`` after each."""
+    names = list(integrators or expectations.INTEGRATORS)
+    cells = []
+    for key in (row_keys or list(rows())):
+        for name in names:
+            cell = run(key, name, seed=seed, quick=quick)
+            cells.append(cell)
+            if progress is not None:
+                progress(cell)
+    return cells

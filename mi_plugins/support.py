@@ -1,0 +1,103 @@
+"""What the package's integrators handle, checked before any work.
+
+Every integrator of the package calls its checks at the start of ``render()``: a scene
+feature it cannot render right raises :class:`Unsupported`, whose message names the
+integrator, the feature (the Mitsuba plugin and the object's id), why, and what to
+use instead. The coverage matrix (``mi-plugins verify --suite coverage``) holds every
+feature Mitsuba can put in a scene against these checks.
+"""
+import re
+
+import mitsuba as mi
+
+#: Mitsuba class names (as ``class_name()`` and printing report them) -> plugin names
+PLUGIN_OF_CLASS = {
+    "HomogeneousMedium": "homogeneous", "HeterogeneousMedium": "heterogeneous",
+    "PerspectiveCamera": "perspective", "ThinLensCamera": "thinlens", "OrthographicCamera": "orthographic",
+    "RadianceMeter": "radiancemeter", "IrradianceMeter": "irradiancemeter", "BatchSensor": "batch",
+    "DistantSensorImpl": "distant", "DistantSensor": "distant",
+    "BumpMap": "bumpmap", "NormalMap": "normalmap", "Hair": "hair",
+    "SmoothDiffuse": "diffuse", "Null": "null", "MaskBSDF": "mask", "TwoSidedBRDF": "twosided",
+    "SpotLight": "spot", "Projector": "projector", "PointLight": "point", "DirectionalEmitter": "directional",
+    "AreaLight": "area", "DirectionalArea": "directionalarea", "EnvironmentMapEmitter": "envmap",
+    "ConstantBackgroundEmitter": "constant", "SunskyEmitter": "sunsky", "TimedSunskyEmitter": "timed_sunsky",
+}
+
+
+#: the sensor plugins of Mitsuba (by the names above)
+SENSOR_PLUGINS = ("perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter", "batch", "distant")
+
+
+class Unsupported(ValueError):
+    """A scene feature an integrator does not render right: raised before any work.
+    ``integrator``: the plugin refusing; ``feature``: the Mitsuba plugin (or case) name."""
+
+    def __init__(self, integrator, feature, subject, why, instead):
+        self.integrator, self.feature = integrator, feature
+        super().__init__("%s: %s is not supported: %s; %s" % (integrator, subject, why, instead))
+
+
+def plugin_name(obj):
+    """The Mitsuba plugin name of ``obj`` (its class name where the table does not know it)."""
+    name = obj.class_name() if hasattr(obj, "class_name") else type(obj).__name__
+    return PLUGIN_OF_CLASS.get(name, name)
+
+
+def describe(obj, kind):
+    """"the <kind> '<plugin>' (id '<id>')" for messages."""
+    ident = obj.id() if hasattr(obj, "id") else ""
+    named = " (id '%s')" % ident if ident and not ident.startswith("_unnamed") else ""
+    return "the %s '%s'%s" % (kind, plugin_name(obj), named)
+
+
+def nested_classes(obj):
+    """Class names of ``obj`` and of every object nested in it (read from Mitsuba's
+    printout, which lists nested plugins by class: e.g. a ``twosided`` BSDF around a
+    ``bumpmap``)."""
+    return set(re.findall(r"([A-Z][A-Za-z0-9_]*)\[", str(obj)))
+
+
+def bsdfs(scene):
+    """(shape, bsdf) of every shape of ``scene`` that has a BSDF."""
+    return [(s, s.bsdf()) for s in scene.shapes() if s.bsdf() is not None]
+
+
+def refuse_media(integrator, scene, sensor, instead="render participating media with Mitsuba's 'volpath'"):
+    """Raise :class:`Unsupported` when ``scene`` holds a participating medium (inside or
+    outside a shape, or around the sensor)."""
+    found = []
+    if sensor is not None and sensor.get_medium() is not None:
+        found.append((sensor.get_medium(), "around the sensor"))
+    for shape in scene.shapes():
+        for medium, side in ((shape.interior_medium(), "interior"), (shape.exterior_medium(), "exterior")):
+            if medium is not None:
+                found.append((medium, "the %s of shape '%s'" % (side, shape.id())))
+    if found:
+        medium, where = found[0]
+        raise Unsupported(integrator, plugin_name(medium), describe(medium, "participating medium") + ", " + where,
+                          "light is transported between surfaces only (no scattering or absorption in volumes)",
+                          instead)
+
+
+def refuse_sensor(integrator, sensor, supported, why, instead="render with Mitsuba's 'path'"):
+    """Raise :class:`Unsupported` unless the sensor's plugin is one of ``supported``."""
+    name = plugin_name(sensor)
+    if name not in supported:
+        raise Unsupported(integrator, name, describe(sensor, "sensor"), why, instead)
+
+
+def refuse_classes(integrator, scene, classes, why, instead):
+    """Raise :class:`Unsupported` when a shape's BSDF is (or nests) one of ``classes``
+    (Mitsuba class names)."""
+    for shape, bsdf in bsdfs(scene):
+        found = nested_classes(bsdf) & set(classes)
+        if found:
+            name = PLUGIN_OF_CLASS.get(sorted(found)[0], sorted(found)[0])
+            raise Unsupported(integrator, name, "the BSDF '%s' of shape '%s'" % (name, shape.id()), why, instead)
+
+
+def sensors_of(scene, sensor):
+    """``sensor`` (an index or a Sensor) as a Sensor of ``scene``."""
+    if isinstance(sensor, int):
+        return scene.sensors()[sensor]
+    return sensor
