@@ -7,6 +7,7 @@ import re
 import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 
@@ -221,6 +222,134 @@ def test_the_scene_and_its_files_are_shipped(tmp_path):
     shutil.rmtree(tmp_path / "broken" / "meshes")
     with pytest.raises(FileNotFoundError, match="references 'meshes/.*which does not exist"):
         scene_bundle.bundle(broken)
+
+
+def write_obj(path, triangles):
+    """An OBJ mesh of ``triangles`` separate triangles: its vertex count (3 per
+    triangle) tells which of several same-named files Mitsuba took."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, "w") as f:
+        f.writelines("v %d 0 0\nv %d 1 0\nv %d 0 1\n" % (i, i, i) for i in range(triangles))
+        f.writelines("f %d %d %d\n" % (3 * i + 1, 3 * i + 2, 3 * i + 3) for i in range(triangles))
+
+
+def write_xml(path, *elements):
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, "w") as f:
+        f.write('<scene version="3.0.0">\n    %s\n</scene>\n' % "\n    ".join(elements))
+    return str(path)
+
+
+def obj_shape(shape_id, filename):
+    return '<shape type="obj" id="%s"><string name="filename" value="%s"/></shape>' % (shape_id, filename)
+
+
+def vertex_counts(scene_file, **params):
+    """{shape id: vertex count} of the scene as Mitsuba loads it."""
+    return {s.id(): s.vertex_count() for s in mi.load_file(str(scene_file), **params).shapes()}
+
+
+def loaded_on_a_worker(b, tmp_path, monkeypatch, **params):
+    """The vertex counts of bundle ``b`` written into a fresh temporary directory, the
+    original files (tmp_path/src) deleted first."""
+    shutil.rmtree(tmp_path / "src")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "worker"))
+    path = scene_bundle.materialize(b)
+    assert path.startswith(str(tmp_path / "worker"))
+    return vertex_counts(path, **params)
+
+
+def test_a_fragment_names_meshes_relative_to_the_main_file(tmp_path, monkeypatch):
+    """An included fragment's mesh paths are relative to the main file's folder (Mitsuba
+    resolves a filename with the main file's search list, wherever it is written): the
+    bundle ships that mesh, and written elsewhere the scene loads the same shapes."""
+    src = tmp_path / "src"
+    scene = write_xml(src / "scene.xml", '<include filename="fragments/shapes.xml"/>')
+    write_xml(src / "fragments" / "shapes.xml", obj_shape("a", "meshes/x.obj"), obj_shape("b", "meshes/y.obj"))
+    write_obj(src / "meshes" / "x.obj", 1)
+    write_obj(src / "meshes" / "y.obj", 2)
+    expected = vertex_counts(scene)
+    assert expected == {"a": 3, "b": 6}
+    b = scene_bundle.bundle(scene)
+    assert sorted(b.files) == sorted(["scene.xml", os.path.join("fragments", "shapes.xml"),
+                                      os.path.join("meshes", "x.obj"), os.path.join("meshes", "y.obj")])
+    assert b.absolute == [] and loaded_on_a_worker(b, tmp_path, monkeypatch) == expected
+
+
+def test_path_entries_are_searched_first_and_kept_on_the_workers(tmp_path, monkeypatch):
+    """<path> folders come before the main file's folder, the last declared first, and a
+    relative one is relative to the declaring file's folder: a mesh in both the main
+    folder and 'assets' is the one in 'assets'; one found through '../shared' (outside
+    the main folder) is shipped in the same layout; 'empty' holds nothing but must exist
+    on the worker (Mitsuba refuses a missing <path>); an absolute <path> and the file
+    found through it are not shipped but checked by name."""
+    src, shared = tmp_path / "src" / "scene", tmp_path / "shared_fs"
+    scene = write_xml(src / "scene.xml", '<path value="../shared"/>', '<path value="assets"/>',
+                      '<path value="empty"/>', '<path value="%s"/>' % shared,
+                      obj_shape("a", "x.obj"), obj_shape("b", "lib.obj"), obj_shape("c", "ext.obj"))
+    write_obj(src / "x.obj", 1)
+    write_obj(src / "assets" / "x.obj", 2)
+    write_obj(tmp_path / "src" / "shared" / "lib.obj", 3)
+    write_obj(shared / "ext.obj", 4)
+    os.makedirs(src / "empty")
+    expected = vertex_counts(scene)
+    assert expected == {"a": 6, "b": 9, "c": 12}
+    b = scene_bundle.bundle(scene)
+    assert sorted(b.files) == sorted([os.path.join("scene", "scene.xml"), os.path.join("scene", "assets", "x.obj"),
+                                      os.path.join("shared", "lib.obj")])
+    assert b.scene == os.path.join("scene", "scene.xml") and os.path.join("scene", "empty") in b.folders
+    assert b.absolute == sorted([str(shared), str(shared / "ext.obj")])
+    assert loaded_on_a_worker(b, tmp_path, monkeypatch) == expected
+
+
+def test_nested_includes_and_parameters_resolve_as_mitsuba_does(tmp_path, monkeypatch):
+    """An include's name is searched in the including file's folder first, then in that
+    file's <path> folders, then in the folders of the files that include it; a <default>
+    and the given $parameters are substituted in every name. Decoys of the same names
+    further down those lists (and a mesh relative to the fragment) are not what Mitsuba
+    takes, and not what is shipped."""
+    src = tmp_path / "src"
+    scene = write_xml(src / "scene.xml", '<default name="part" value="walls"/>',
+                      '<include filename="fragments/$part.xml"/>')
+    write_xml(src / "fragments" / "walls.xml", '<path value="more"/>', '<include filename="floor.xml"/>',
+              '<include filename="ceiling.xml"/>', obj_shape("wall", "meshes/$mesh.obj"))
+    write_xml(src / "fragments" / "floor.xml", obj_shape("floor", "meshes/floor.obj"))
+    write_xml(src / "fragments" / "more" / "ceiling.xml", obj_shape("ceiling", "meshes/floor.obj"))
+    for decoy in [src / "fragments" / "more" / "floor.xml", src / "floor.xml", src / "ceiling.xml"]:
+        write_xml(decoy, obj_shape("decoy", "meshes/floor.obj"))
+    write_obj(src / "meshes" / "wall.obj", 1)
+    write_obj(src / "fragments" / "meshes" / "wall.obj", 5)
+    write_obj(src / "meshes" / "floor.obj", 2)
+    expected = vertex_counts(scene, mesh="wall")
+    assert expected == {"wall": 3, "floor": 6, "ceiling": 6}
+    b = scene_bundle.bundle(scene, {"mesh": "wall"})
+    assert sorted(b.files) == sorted(["scene.xml", os.path.join("fragments", "walls.xml"),
+                                      os.path.join("fragments", "floor.xml"),
+                                      os.path.join("fragments", "more", "ceiling.xml"),
+                                      os.path.join("meshes", "wall.obj"), os.path.join("meshes", "floor.obj")])
+    assert loaded_on_a_worker(b, tmp_path, monkeypatch, mesh="wall") == expected
+
+
+def test_a_missing_file_names_its_fragment_and_the_folders_searched(tmp_path, monkeypatch):
+    """A name Mitsuba finds nowhere: the message names the fragment that writes it, the
+    name as written and as substituted, and the folders searched in order. A file Mitsuba
+    finds only through the working directory (the workers' differs) is refused by name."""
+    src = tmp_path / "src"
+    os.makedirs(src / "assets")
+    scene = write_xml(src / "scene.xml", '<path value="assets"/>', '<include filename="fragments/shapes.xml"/>')
+    fragment = write_xml(src / "fragments" / "shapes.xml", obj_shape("a", "meshes/$name.obj"))
+    with pytest.raises(Exception, match="none.obj"):
+        mi.load_file(scene, name="none")
+    with pytest.raises(FileNotFoundError) as e:
+        scene_bundle.bundle(scene, {"name": "none"})
+    assert ("references 'meshes/none.obj' (written 'meshes/$name.obj') (in %s), which does not exist in any folder "
+            "Mitsuba searches for it: %s, %s, " % (fragment, src / "assets", src)) in str(e.value)
+    write_obj(tmp_path / "cwd" / "meshes" / "stray.obj", 1)
+    monkeypatch.chdir(tmp_path / "cwd")
+    assert vertex_counts(scene, name="stray") == {"a": 3}
+    with pytest.raises(FileNotFoundError, match=re.escape("finds only as '%s', through the working directory"
+                                                          % (tmp_path / "cwd" / "meshes" / "stray.obj"))):
+        scene_bundle.bundle(scene, {"name": "stray"})
 
 
 def test_adaptive_qmc_is_refused(clients, tmp_path):
