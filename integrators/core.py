@@ -39,6 +39,10 @@ from mi_plugins.progress import Progress, Steps
 #: backend, per-core copies of the target instead of contended atomics
 SPLAT_MODE = dr.ReduceMode.Expand
 
+#: the most iterations an iterative integrator takes (a documented maximum: beyond it a
+#: render would run for days)
+MAX_ITERATIONS = 1 << 20
+
 SUPPORTED = "a JIT RGB (non-polarized) variant such as 'llvm_ad_rgb' or 'cuda_ad_rgb'"
 #: Mitsuba's differentiable integrators, named by the refusal
 DIFFERENTIABLE = "Mitsuba's 'prb' or 'prbvolpath'"
@@ -196,6 +200,16 @@ class Frame:
         block = self.light_block(name, scale)
         self._put(block, uv + mi.Vector2f(block.offset()), mi.Color3f(value), 0.0, 0.0, active)
 
+    def block_total(self, name):
+        """The sum of every channel of block ``name`` (a Float of width 1, not evaluated)."""
+        return dr.sum(self._blocks[name][0].tensor().array)
+
+    def clear(self, name):
+        """Empty block ``name`` (and its committed contents)."""
+        block = self._blocks[name][0]
+        block.clear()
+        self._committed.pop(name, None)
+
     def state(self):
         """What an iteration's dr.eval must evaluate: the blocks, and the camera sampler's
         state (scheduled: otherwise every pass's kernel would recompute its history)."""
@@ -301,7 +315,7 @@ class CoreIntegrator(mi.SamplingIntegrator):
     def read_iterations(self, p, default):
         """Read ``iterations`` (>= 1) and ``burn_in`` (0 .. iterations - 1, default
         min(8, iterations - 1)) of an iterative plugin with its reader ``p``."""
-        self.iterations = p.int("iterations", default, lo=1)
+        self.iterations = p.int("iterations", default, lo=1, hi=MAX_ITERATIONS)
         self.burn_in = p.int("burn_in", min(8, self.iterations - 1), lo=0)
         if self.burn_in > self.iterations - 1:
             raise p.conflict(("burn_in", "iterations"), "burn_in in 0 .. iterations - 1 = %d" % (self.iterations - 1))

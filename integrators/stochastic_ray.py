@@ -3,12 +3,16 @@
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import seeds, support
-from mi_plugins.integrators.core import CoreIntegrator, coverage
+from mi_plugins import limits, seeds, support
+from mi_plugins.integrators import burn_in
+from mi_plugins.integrators.core import MAX_ITERATIONS, CoreIntegrator, coverage
 from mi_plugins.integrators.handoff import Handoff
 from mi_plugins.lights import sample_light_rays
 from mi_plugins.params import Params
 
+#: memory per chain at most (its ray, power, depth and random state, twice while a step
+#: replaces them, and the step's splat)
+BYTES_PER_CHAIN = 256
 #: emitted rays start this far (relative to 1 + their largest coordinate) off the light,
 #: as Mitsuba's spawn_ray offsets rays off a surface
 SPAWN_EPSILON = 1e-4
@@ -24,25 +28,34 @@ class StochasticRayIntegrator(CoreIntegrator):
     Szirmay-Kalos, section 4: the iteration L_n = Le + T*_n L_{n-1}, where each random
     operator sends the whole power of L_{n-1} along ONE ray: restart from the lights with
     probability Phi_e / Phi_n (Phi_e: emitted power, Phi_n: power carried), otherwise
-    continue from the last hit in a BSDF-sampled direction (the BSDF sample weight stands
-    in for the albedo, so any Mitsuba BSDF and the ``simulated_area`` / ``directional_area``
+    continue from the last hit in a BSDF-sampled direction (the BSDF evaluated as
+    Mitsuba's path tracer evaluates it on the same path, so any Mitsuba BSDF, shading
+    normals, bump and normal maps and the ``simulated_area`` / ``directional_area``
     emitters work, negative simulated emission included). Each step's image estimate
     connects the new hit point to the camera (light tracing with direct pixel
-    contribution) plus the emission seen directly (camera rays drawn from the sensor's
-    sampler and followed through mirrors and glass); the image is the average of the
-    steps after ``burn_in``. Many chains run in lockstep, one Dr.Jit lane each, one fused
-    kernel per step: no lane idles on short paths.
+    contribution); the camera's own share is the emission of the first surface each
+    camera ray meets, and the light that surface passes on through delta and null lobes
+    (mirrors, glass, ``null``, ``mask``, the specular layer of ``plastic``), which no
+    connection reaches: continued there by Mitsuba's ``path`` (one BSDF sample per camera
+    sample). The image is the average of the steps after the burn-in. Many chains run in
+    lockstep, one Dr.Jit lane each, one fused kernel per step: no lane idles on short
+    paths.
 
     .. pluginparameters::
 
      * - iterations
        - int
        - 32
-       - >= 1 transport steps per chain
+       - >= 1 transport steps per chain (more when the burn-in is lengthened, below)
      * - burn_in
        - int
-       - min(8, iterations - 1)
-       - 0 .. iterations - 1 first steps left out of the average
+       - fitted to the scene, at least min(8, iterations - 1)
+       - 0 .. iterations - 1 first steps left out of the average; given, it is used as
+         it is
+     * - max_iterations
+       - int
+       - max(4096, iterations)
+       - >= iterations: the most steps the burn-in fitting and the drift check may run
      * - max_depth
        - int
        - -1
@@ -55,15 +68,24 @@ class StochasticRayIntegrator(CoreIntegrator):
 
     **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x width x height chains of
     ``iterations`` steps each: work is linear in k (and in ``iterations``).
-    **Burn-in:** the average misses the power defect of the paper's eq. 20, which decays
-    like lambda^burn_in / (1 - lambda)^2 for the scene's largest albedo lambda: the
-    default is ample up to lambda ~ 0.5; the constant-radiance scenes (albedos ~ 0.9)
-    need about 64 (measured: ``constant_lightsource_sierpinski`` z = -8.3 with 32/8, +1.9
-    with 96/64; the verify matrix sets ``iterations=96, burn_in=64`` there). Not covered:
-    light paths that reach the camera through a specular surface after a diffuse one (as
-    in ``ptracer``). Light splats go through the film's reconstruction filter, with the
-    part of a wide filter beyond the crop window compensated (Mitsuba's ``ptracer``
-    darkens the border pixels there, by ~10 % with the default Gaussian filter).
+    **Burn-in:** the average misses the power defect of the paper's eq. 20, about
+    lambda^b / (1 - lambda)^2 after b steps of burn-in, lambda the scene's effective
+    albedo. By default the burn-in is fitted to the scene: lambda is measured from the
+    chains (power continued over power carried, in the second half of the first
+    min(8, iterations - 1) steps) and the burn-in made long enough for a defect below
+    1e-3 (an albedo-1 room lit by a weak emitter needs over a thousand steps; the
+    furnace with albedo 0.5 about 12). After the planned steps a drift check compares
+    the image mean of the first and second half of the averaged steps
+    (:mod:`mi_plugins.convergence`); while it still drifts, the steps so far become
+    burn-in and twice as many are averaged. Both stop at ``max_iterations`` with a
+    ``RuntimeWarning`` naming the measured defect. **Sensors:** ``perspective``,
+    ``thinlens`` and ``batch`` (light paths connect to them); others (``orthographic``,
+    ``radiancemeter``, ``irradiancemeter``, ``distant``) are refused, naming the sensor.
+    **Refused:** participating media (use ``volpath``), integrators that call it per
+    camera ray (``aov``, ``moment``). Light splats go through the film's reconstruction
+    filter, with the part of a wide filter beyond the crop window compensated
+    (Mitsuba's ``ptracer`` darkens the border pixels there, by ~10 % with the default
+    Gaussian filter).
 
     .. code-block:: python
 
@@ -84,6 +106,10 @@ class StochasticRayIntegrator(CoreIntegrator):
         super().__init__(props)
         p = Params(props, "stochastic_ray")
         self.read_iterations(p, 32)
+        self.auto_burn_in = "burn_in" not in props    # fitted to the scene (burn_in.lengthen)
+        self.measured_albedo = None
+        self.max_iterations = p.int("max_iterations", max(4096, self.iterations), lo=self.iterations, hi=MAX_ITERATIONS,
+                                    note="the most steps the burn-in check may extend a render to")
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.handoff = Handoff(self.max_depth)
 
@@ -127,7 +153,12 @@ class StochasticRayIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene, seed = frame.scene, frame.seed
         chains = frame.spp * frame.pixels
+        limits.check_lanes(self.plugin, "spp=%d x %d pixels" % (frame.spp, frame.pixels), chains, BYTES_PER_CHAIN,
+                           frame.pixels, "spp")
         self._camera_paths(frame)
+        if not scene.emitters():      # no light to trace: the camera's share (black) is the image
+            self.steps(0, 0)
+            return
         # opaque: a new value (other seed, simulated emission) must not recompile the step kernel
         phi_e = dr.opaque(mi.Float, self._emitted_power(scene, seed))
         rng = seeds.pcg(chains, seed, "light")
@@ -138,11 +169,28 @@ class StochasticRayIntegrator(CoreIntegrator):
         # each averaged step's splats estimate the image once per chain and pixel
         scale = lambda: frame.pixels / (chains * max(self.progress.averaged, 1))
         frame.light_block("light", scale)
+        totals = []      # per averaged step: the light block's sum so far (for the drift check)
+        ratios = []      # per step of the burn-in's second half: (power carried, power continued)
         try:
             for it in steps.iterations():
-                ray, power, depth = self._step(frame, ray, power, depth, rng, phi_e, it >= self.burn_in)
-                dr.eval(ray, power, depth, rng.state, frame.state())
+                averaged = it >= steps.state.burn_in
+                carried = _magnitude(power)
+                ray, power, depth, continued = self._step(frame, ray, power, depth, rng, phi_e, averaged)
+                total = frame.block_total("light") if averaged else None
+                window = self.auto_burn_in and steps.state.burn_in // 2 <= it < self.burn_in
+                ratio = (dr.sum(carried), dr.sum(_magnitude(continued))) if window else None
+                dr.eval(ray, power, depth, rng.state, frame.state(), total, ratio)
                 frame.commit()
+                if averaged:
+                    totals.append(total)
+                if window:
+                    ratios.append(ratio)
+                if window and it + 1 == self.burn_in:
+                    self.measured_albedo = burn_in.lengthen(self.plugin, steps, ratios, self.max_iterations)
+                if it + 1 == steps.count and burn_in.drift_check(self.plugin, steps, totals, self.max_iterations,
+                                                                 extend=self.auto_burn_in):
+                    frame.clear("light")
+                    totals.clear()
         except KeyboardInterrupt:
             steps.stop()  # Ctrl-C: keep the finished iterations
             frame.rollback()
@@ -199,13 +247,13 @@ class StochasticRayIntegrator(CoreIntegrator):
                       smooth_w / dr.select(bs.pdf > 0, bs.pdf, 1.0))
         can_continue = hit & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
         cont = dr.select(can_continue, power * w, 0.0)
-        cont_s = (dr.abs(cont.x) + dr.abs(cont.y) + dr.abs(cont.z)) / 3.0
+        cont_s = _magnitude(cont)
         p_restart = phi_e / (phi_e + cont_s)
         restart = rng.next_float32() < p_restart
         light_ray, light_power = self._light_ray(scene, rng, restart)
         new_ray = dr.select(restart, light_ray, si.spawn_ray(si.to_world(bs.wo)))
         new_power = dr.select(restart, light_power / p_restart, cont / dr.maximum(1.0 - p_restart, 1e-12))
-        return new_ray, new_power, dr.select(restart, 0, depth_hit)
+        return new_ray, new_power, dr.select(restart, 0, depth_hit), cont
 
     @staticmethod
     def _path_weight(si, bsdf, ctx, toward_camera, to_light, cos_light, active):
@@ -218,6 +266,11 @@ class StochasticRayIntegrator(CoreIntegrator):
         f = mi.Color3f(bsdf.eval(ctx, at, to_light, active))
         cos_camera = dr.abs(dr.dot(si.n, si.to_world(toward_camera)))
         return dr.select(active & (cos_light > 0), f * cos_camera / dr.select(cos_light > 0, cos_light, 1.0), 0.0)
+
+
+def _magnitude(power):
+    """The mean of |R|, |G|, |B| of powers (simulated emission can be negative)."""
+    return (dr.abs(power.x) + dr.abs(power.y) + dr.abs(power.z)) / 3.0
 
 
 def shading_normal_correction(si, wo_local):

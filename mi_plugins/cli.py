@@ -15,14 +15,17 @@ def _parser():
     p = argparse.ArgumentParser(prog="mi-plugins", description="Mitsuba 3 plugins with analytic verification.")
     sub = p.add_subparsers(dest="command", required=True)
 
-    v = sub.add_parser("verify", help="run the integrator x analytic-case verification matrix, or the "
-                                      "conformance suite of ordinary scenes (--suite scenes)")
-    v.add_argument("--suite", choices=("analytic", "scenes"), default="analytic",
+    v = sub.add_parser("verify", help="run the integrator x analytic-case verification matrix, the "
+                                      "conformance suite of ordinary scenes (--suite scenes) or the coverage matrix "
+                                      "of every Mitsuba feature (--suite coverage)")
+    v.add_argument("--suite", choices=("analytic", "scenes", "coverage"), default="analytic",
                    help="analytic: integrator x analytic-case matrix (default); scenes: conformance suite "
-                        "(ordinary Mitsuba scenes, every package integrator against Mitsuba's path)")
+                        "(ordinary Mitsuba scenes, every package integrator against Mitsuba's path); coverage: every "
+                        "plugin Mitsuba ships (and a few cases) against every package integrator")
     v.add_argument("--quick", action="store_true", help="small subset at low resolution (about 3 minutes on 2 cores)")
     v.add_argument("--integrators", nargs="+", metavar="NAME", help="integrators of the matrix to run")
-    v.add_argument("--scenes", nargs="+", metavar="CASE", help="analytic cases (or conformance scenes) to run")
+    v.add_argument("--scenes", nargs="+", metavar="CASE",
+                   help="analytic cases (conformance scenes, coverage rows such as bsdf:plastic) to run")
     v.add_argument("--report", metavar="DIR", help="write verify.json and verify.md into DIR")
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--list", action="store_true", help="list the integrators and cases and exit")
@@ -53,6 +56,14 @@ def _parser():
 def _verify(args):
     if args.gradients and args.suite != "analytic":
         raise ValueError("--gradients applies to --suite analytic (got --suite %s)" % args.suite)
+    if args.suite == "coverage":
+        from . import coverage
+        from .coverage import report
+        if args.list:
+            print("integrators: " + ", ".join(coverage.expected.INTEGRATORS))
+            print("rows:        " + ", ".join(coverage.matrix.rows()))
+            return 0
+        return report.verify(args.integrators, args.scenes, quick=args.quick, report=args.report, seed=args.seed)
     if args.suite == "scenes":
         from . import conformance
         if args.list:

@@ -52,11 +52,22 @@ class Steps:
         owner.progress = self.state
 
     def iterations(self):
-        for it in range(self.count):
+        it = 0
+        while it < self.count:        # (extend may raise the count during the loop)
             yield it
+            it += 1
             self.state.done += 1
             if not self._report():
                 return
+
+    def extend(self, count, restart_average=True):
+        """Run ``count`` more iterations; with ``restart_average`` the ones done so far
+        become burn-in (their image is discarded by the caller)."""
+        if restart_average:
+            self.state.burn_in = self.count
+        self.count += int(count)
+        self.state.total += int(count)
+        self.state.planned_averaged = self.count - self.state.burn_in
 
     def second_stage(self, count):
         for k in range(count):

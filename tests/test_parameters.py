@@ -104,13 +104,14 @@ TABLE = {
         "hide_emitters": BOOL(),
     },
     "stochastic_ray": {
-        "iterations": INT(1, good=[1, 32]),
+        "iterations": INT(1, hi=1 << 20, good=[1, 32]),
+        "max_iterations": INT(32, hi=1 << 20, good=[32, 100]),   # >= iterations (default 32)
         "burn_in": INT(0, good=[0, 31], extra_bad=[32]),          # 32: iterations - 1 = 31 (default 32)
         "max_depth": INT(-1, good=[-1, 0, 5]),
         "hide_emitters": BOOL(),
     },
     "ray_bundle": {
-        "iterations": INT(1, good=[1, 64]),
+        "iterations": INT(1, hi=1 << 20, good=[1, 64]),
         "burn_in": INT(0, good=[0, 15], extra_bad=[16]),          # 16: iterations - 1 = 15 (default 16)
         "resolution": INT(1),
         "chains": INT(1),

@@ -205,8 +205,10 @@ def test_fixed_seed_is_deterministic():
     s = budget.seed(5)
     a, b = np.array(mi.render(scene, seed=s, spp=1)), np.array(mi.render(scene, seed=s, spp=1))
     c = np.array(mi.render(scene, seed=s + 1, spp=1))
-    assert np.array_equal(a, b)
-    assert not np.array_equal(a, c)
+    # the same image up to the order of float additions in parallel sums (measured: at most
+    # 2.4e-7 on values near 1); another seed differs by the noise (about 0.1)
+    assert np.allclose(a, b, rtol=1e-5, atol=1e-6), float(np.abs(a - b).max())
+    assert np.abs(a - c).max() > 1e-3
 
 
 def test_progress_callback_and_early_stop():

@@ -28,9 +28,6 @@ RADIOSITY = ("radiosity setting: qmc_lighttrace stores one diffuse radiance per 
              "(README, qmc_lighttrace)")
 BUNDLE_DELTA = ("transport through delta (mirror/glass) surfaces cannot be captured by random global directions; "
                 "ray_bundle says so with a RuntimeWarning naming the shapes (README, ray_bundle)")
-SPLAT_VIA_SPECULAR = ("the camera sees diffuse surfaces through a mirror/glass: stochastic_ray connects light "
-                      "paths to the camera directly, so light reaching the camera through a specular surface "
-                      "after a diffuse one is not covered (README, stochastic_ray)")
 
 
 @dataclass
@@ -93,10 +90,11 @@ INTERREFLECTING = ("cornell_mesh", "winding_inward", "winding_outward_flipped", 
 # ------------------------------------------------------------------ the three integrators
 STOCHASTIC_RAY = IntegratorSpec(
     "stochastic_ray", {"type": "stochastic_ray", "iterations": 24, "burn_in": 16}, spp=64,
-    not_applicable={"mirror": NotApplicable(SPLAT_VIA_SPECULAR), "glass": NotApplicable(SPLAT_VIA_SPECULAR)},
     # albedo up to 0.89 (mi.cornell_box's white): the power defect ~ lambda^burn_in needs a longer burn-in;
     # mirror_lit's caustic is noisy on both sides: more runs (power 3.8-4.5 % with 16)
-    scene_params={"mitsuba_cornell": {"iterations": 40, "burn_in": 32}}, scene_runs={"mirror_lit": 32})
+    scene_params={"mitsuba_cornell": {"iterations": 40, "burn_in": 32}}, scene_runs={"mirror_lit": 32},
+    # the mirror is seen through Mitsuba's path (the camera's share of delta lobes): more camera samples
+    scene_spp={"mirror": 160})
 
 RAY_BUNDLE = IntegratorSpec(
     "ray_bundle", {"type": "ray_bundle", "chains": 32, "resolution": 16, "first_shot": True, "iterations": 20,

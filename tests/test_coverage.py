@@ -1,0 +1,127 @@
+"""The coverage matrix: every feature Mitsuba can put in a scene against every package
+integrator (``mi_plugins.coverage``; the table is ``docs/coverage.md``).
+
+One test per cell: its outcome must be the expected one (PASS, or the documented
+REFUSED / N/A of ``mi_plugins.coverage.expected``), a PASS must see a relative error of
+the image mean of ``POWER_LIMIT`` and run within ``matrix.SLOWNESS_LIMIT`` times the
+reference's seconds per run. The catalogue test fails when the installed Mitsuba ships
+a plugin without a row. Tests of the matrix itself: a deliberately wrong integrator
+fails, a refusal with the wrong message fails, a slow cell fails.
+"""
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import budget
+from mi_plugins.conformance import outcomes
+from mi_plugins.coverage import catalog, expected, matrix, rows
+
+#: every PASS of this file must detect a relative error of the image mean of this size
+POWER_LIMIT = 0.1
+SEED = 2000
+
+ROWS = list(matrix.rows())
+INTEGRATORS = list(expected.INTEGRATORS)
+
+
+def test_every_mitsuba_plugin_has_a_row():
+    plugins = catalog.mitsuba_plugins()
+    covered = {row.plugin for row in matrix.rows().values() if row.plugin}
+    missing = sorted(set(plugins) - covered)
+    assert not missing, "Mitsuba plugins without a coverage row: %s" % ", ".join(missing)
+    assert "other" not in plugins.values(), plugins
+
+
+def test_rows_name_installed_plugins():
+    plugins = catalog.mitsuba_plugins()
+    from mi_plugins import registry
+    own = {name for kinds in registry.plugin_table().values() for name in kinds}
+    for key, row in matrix.rows().items():
+        if row.plugin is not None:
+            assert row.plugin in plugins or row.plugin in own, key
+            if row.plugin in plugins and row.kind not in ("package", "case", "format", "depth"):
+                assert plugins[row.plugin] == row.kind, (key, plugins[row.plugin])
+
+
+def test_expectations_name_rows():
+    for spec in expected.INTEGRATORS.values():
+        for key in list(spec.refused) + list(spec.na) + list(spec.row_params) + list(spec.row_spp):
+            assert key in matrix.rows(), (spec.name, key)
+
+
+@pytest.mark.parametrize("row,integrator", [(r, i) for r in ROWS for i in INTEGRATORS])
+def test_cell(row, integrator):
+    cell = matrix.run(row, integrator, seed=budget.seed(SEED))
+    assert cell.ok, repr(cell)
+    if cell.outcome == outcomes.PASS:
+        budget.record("coverage", cell.false_failure, row=row, integrator=integrator,
+                      power=None if math.isinf(cell.power) else float(cell.power))
+        if math.isinf(cell.power):       # a black reference: the absolute tolerance
+            assert cell.tolerance <= 1e-4, repr(cell)
+        else:
+            assert cell.power <= POWER_LIMIT, "the cell detects only %.3g %%: %r" % (100 * cell.power, cell)
+
+
+# ------------------------------------------------------------------ the matrix's own tests
+class _ScaledPath(mi.SamplingIntegrator):
+    """``path`` with its image scaled: a deliberately wrong integrator."""
+
+    def __init__(self, props):
+        super().__init__(props)
+        self.scale = props.get("scale", 1.0)
+        self.inner = mi.load_dict({"type": "path", "max_depth": props.get("max_depth", -1)})
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        return mi.TensorXf(np.array(self.inner.render(scene, sensor, seed, spp, develop, evaluate)) * self.scale)
+
+
+class _Refusing(mi.SamplingIntegrator):
+    def __init__(self, props):
+        super().__init__(props)
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        from mi_plugins.support import Unsupported
+        raise Unsupported("coverage_refusing", "diffuse", "the BSDF 'diffuse' of shape 'subject'", "a test",
+                          "use path")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _test_integrators():
+    mi.register_integrator("coverage_scaled_path", lambda props: _ScaledPath(props))
+    mi.register_integrator("coverage_refusing", lambda props: _Refusing(props))
+    yield
+
+
+def _spec(name, params, **kw):
+    return expected.Spec(name, params, spp=64, **kw)
+
+
+def test_scaled_path_fails_and_path_passes():
+    for scale, outcome in ((1.1, outcomes.FAIL), (1.0, outcomes.PASS)):
+        cell = matrix.run("bsdf:diffuse", _spec("path*%g" % scale, {"type": "coverage_scaled_path", "scale": scale}),
+                          seed=budget.seed(SEED))
+        assert cell.outcome == outcome, repr(cell)
+
+
+def test_truncated_path_fails():
+    spec = _spec("path(max_depth=2)", {"type": "coverage_scaled_path"}, row_params={"bsdf:diffuse": {"max_depth": 2}})
+    cell = matrix.run("bsdf:diffuse", spec, seed=budget.seed(SEED))
+    assert cell.outcome == outcomes.FAIL and cell.z < -4.5, repr(cell)
+
+
+def test_refusals_are_recognised_by_their_message():
+    right = _spec("refusing", {"type": "coverage_refusing"}, refused={"bsdf:diffuse": r"coverage_refusing: .*'diffuse'"})
+    assert matrix.run("bsdf:diffuse", right).outcome == outcomes.REFUSED
+    wrong = _spec("refusing", {"type": "coverage_refusing"}, refused={"bsdf:diffuse": r"'plastic'"})
+    cell = matrix.run("bsdf:diffuse", wrong)
+    assert cell.outcome == outcomes.FAIL and "not the expected refusal" in cell.failures[0], repr(cell)
+    unexpected = matrix.run("bsdf:diffuse", _spec("refusing", {"type": "coverage_refusing"}))
+    assert unexpected.outcome == outcomes.FAIL, repr(unexpected)
+
+
+def test_a_slow_cell_fails(monkeypatch):
+    monkeypatch.setattr(matrix, "SLOWNESS_LIMIT", 1e-3)
+    cell = matrix.run("bsdf:diffuse", _spec("path", {"type": "coverage_scaled_path"}), seed=budget.seed(SEED))
+    assert cell.outcome == outcomes.FAIL and any("the reference's" in f for f in cell.failures), repr(cell)
