@@ -1,11 +1,12 @@
 # Two commands do all the set-up on a fresh Debian machine:
-#   make demo   set up, then run the quick verification table
+#   make demo   set up, then render the Cornell box with every integrator (PNGs, contact sheet)
 #   make test   set up, then run the test suite
+# and: make quick (the quick verification table), make verify (the full one)
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: setup demo test verify benchmarks clean
+.PHONY: setup demo quick test verify benchmarks clean
 
 setup: $(VENV)/.installed
 
@@ -17,6 +18,9 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
+	$(VENV)/bin/mi-plugins demo --out reports/demo
+
+quick: setup
 	$(VENV)/bin/mi-plugins verify --quick --report reports/quick
 
 verify: setup

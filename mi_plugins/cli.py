@@ -33,6 +33,13 @@ def _parser():
                    help="the gradient matrix instead: Mitsuba's differentiable integrators against the analytic "
                         "cases' exact derivatives, forward and reverse mode (--report writes gradients.json/.md)")
 
+    d = sub.add_parser("demo", help="render the Cornell box with path and the package's integrators at equal time "
+                                    "(PNGs and a contact sheet), then a short analytic check")
+    d.add_argument("--out", default="reports/demo", metavar="DIR", help="where the PNGs go (default reports/demo)")
+    d.add_argument("--seconds", type=float, default=8.0, help="seconds per integrator (default 8)")
+    d.add_argument("--resolution", type=int, default=64, help="pixels per side (default 64)")
+    d.add_argument("--no-check", action="store_true", help="skip the analytic check")
+
     r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR, PNG or JPEG file")
     r.add_argument("scene", metavar="SCENE.xml")
     r.add_argument("-o", "--output", required=True, metavar="OUT.{exr,png,jpg}",
@@ -188,6 +195,9 @@ def _integrator_name(integrator, scene_file, defines):
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
+        if args.command == "demo":
+            from . import demo
+            return demo.run(args.out, args.seconds, args.resolution, check=not args.no_check)
         return _verify(args) if args.command == "verify" else _render(args)
     except KeyboardInterrupt:
         print("mi-plugins: interrupted", file=sys.stderr)

@@ -1,3 +1,4 @@
+import gc
 import os
 import subprocess
 import sys
@@ -68,6 +69,16 @@ def _primary_variant():
         mi.set_variant("llvm_ad_rgb")
         mi_plugins.register()
     yield
+
+
+@pytest.fixture(autouse=True)
+def _collect_scenes():
+    """Free the scenes a test leaves in reference cycles right after it: Dr.Jit traces the
+    methods of every live plugin instance in every later render (README, Findings), so
+    uncollected scenes make the rest of the suite slower and slower (measured: a 0.4 s
+    render took 2.7-12 s with 15 uncollected scenes alive)."""
+    yield
+    gc.collect()
 
 
 @pytest.fixture(autouse=True)

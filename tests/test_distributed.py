@@ -379,3 +379,22 @@ def test_cli_render_with_workers(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "mi_plugins", "render", KELLER, "-o", str(out), "--workers", "0"],
                          capture_output=True, text=True, cwd=REPO, timeout=300)
     assert bad.returncode == 2 and "--workers 0: valid range: 1 or more" in bad.stderr
+
+
+def test_a_users_own_cluster_gets_the_callers_variant(tmp_path, monkeypatch):
+    """A LocalCluster the user made (no MI_PLUGINS_VARIANT in its workers' environment):
+    the package sets the caller's variant on every worker before the first task (the
+    workers import the package to unpickle a task, which needs a variant)."""
+    from distributed import Client, LocalCluster
+    monkeypatch.delenv("MI_PLUGINS_VARIANT", raising=False)
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0")
+    client = Client(cluster)
+    try:
+        path = scene_copy(str(tmp_path), INTEGRATORS["stochastic_ray"])
+        result = distributed.render(path, 2, client=client, tasks=2, progress=False)
+        assert result.tasks_done == 2 and np.all(np.isfinite(result.image)) and result.image.mean() > 0.1
+        variants = client.run(lambda: __import__("mitsuba").variant())
+        assert set(variants.values()) == {mi.variant()}
+    finally:
+        client.close()
+        cluster.close()

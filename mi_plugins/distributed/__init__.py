@@ -109,14 +109,19 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
     from mi_plugins.distributed.dask_engine import run_tasks
     t0 = time.perf_counter()
     first, image_phase, spp_per_weight = plan.phases(scene.integrator(), scene, spp, tasks, seed)
+    import mitsuba as mi
+    from mi_plugins.distributed.dask_engine import set_variant_on
+    variant = mi.variant()
+    set_variant_on(client, variant)             # before any task: the workers import the package to unpickle one
     remote = client.scatter(shipped, broadcast=True, hash=False)   # own key: never a released twin
     shared = None
     if first is not None:
-        found, stopped = run_tasks(client, first.run, first.tasks, ((remote, params), threads), progress, first.name)
+        found, stopped = run_tasks(client, first.run, first.tasks, ((remote, params, variant), threads), progress,
+                                   first.name)
         if stopped:
             raise KeyboardInterrupt          # nothing of the image is made yet
         shared = client.scatter(first.merge(found, first.tasks), broadcast=True, hash=False)
-    found, stopped = run_tasks(client, image_phase.run, image_phase.tasks, ((remote, params), threads, shared),
+    found, stopped = run_tasks(client, image_phase.run, image_phase.tasks, ((remote, params, variant), threads, shared),
                                progress, image_phase.name)
     image, weight = plan.merge_passes(found, image_phase.tasks)
     if image is None:

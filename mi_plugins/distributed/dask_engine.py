@@ -12,6 +12,31 @@ returns what finished (``interrupted``).
 import uuid
 
 
+def set_variant_on(client, variant):
+    """Make every worker of ``client`` (and every worker that joins later) use Mitsuba
+    ``variant`` before it unpickles a task: unpickling imports this package, which needs a
+    variant set. A Dask worker plugin does it, whatever environment the cluster's workers
+    were started with (a user's own ``LocalCluster`` or a remote cluster). Its class is
+    made here, so that it is pickled by value: a worker need not import this package to
+    receive it."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class MitsubaVariant(WorkerPlugin):
+        name = "mi-plugins-variant"
+
+        def __init__(self, variant):
+            self.variant = variant
+
+        def setup(self, worker):
+            import os
+            os.environ["MI_PLUGINS_VARIANT"] = self.variant
+            import mitsuba as mi
+            if mi.variant() != self.variant:
+                mi.set_variant(self.variant)
+
+    client.register_plugin(MitsubaVariant(variant))
+
+
 class TaskFailed(RuntimeError):
     """A task raised: ``task`` and ``error`` (the original exception, also the cause)."""
 

@@ -158,12 +158,14 @@ def merge_chains(results, tasks):
 _LOADED = {}     # (bundle digest, parameters) -> scene, per worker process
 
 
-def _scene(shipped, params, threads):
+def _scene(shipped, params, variant, threads):
+    """The shipped scene, loaded once per worker process in the caller's ``variant``."""
     import drjit as dr
     import mitsuba as mi
-    if mi.variant() != "llvm_ad_rgb":
-        mi.set_variant("llvm_ad_rgb")
-    import mi_plugins  # noqa: F401  (registers the plugins in this process)
+    import mi_plugins
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+        mi_plugins.register()
     from mi_plugins.distributed.scene_bundle import materialize
     if threads:
         dr.set_thread_count(int(threads))
@@ -202,10 +204,10 @@ def check_order(results, tasks):
     return {t.index: results[t.index][0] for t in tasks}
 
 
-def run_pass(shipped, params, task, threads=None, particles=None):
+def run_pass(shipped, params, variant, task, threads=None, particles=None):
     """Render one pass; ``particles`` = (deposits, paths) for qmc_lighttrace's gather passes."""
     import mitsuba as mi
-    scene = _scene(shipped, params, threads)
+    scene = _scene(shipped, params, variant, threads)
     integrator = scene.integrator()
     if particles is not None:
         integrator.use_particles(*particles)
@@ -231,30 +233,30 @@ def _portable(error):
         return RuntimeError("%s: %s" % (type(cause).__name__, cause))
 
 
-def run_chains(shipped, params, task, threads=None):
+def run_chains(shipped, params, variant, task, threads=None):
     """ray_bundle: the average sums and counts of one group of chains."""
     from mi_plugins.integrators.ray_bundle.split import run_chains as chains
-    scene = _scene(shipped, params, threads)
+    scene = _scene(shipped, params, variant, threads)
     try:
         return chains(scene.integrator(), scene, task.seed, task.spp, task.count), shape_order(scene)
     except Exception as error:
         raise _portable(error) from None
 
 
-def run_gathering(shipped, params, task, threads=None, average=None):
+def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
     from mi_plugins.integrators.ray_bundle.split import run_gathering as gathering
-    scene = _scene(shipped, params, threads)
+    scene = _scene(shipped, params, variant, threads)
     try:
         return gathering(scene.integrator(), scene, average[0], average[1], task.spp, task.seed)
     except Exception as error:
         raise _portable(error) from None
 
 
-def run_particles(shipped, params, task, threads=None):
+def run_particles(shipped, params, variant, task, threads=None):
     """The deposits (K, 2, 3) of one range of qmc_lighttrace's particle phase."""
     from mi_plugins.integrators.qmc_particles import trace_range
-    scene = _scene(shipped, params, threads)
+    scene = _scene(shipped, params, variant, threads)
     integrator = scene.integrator()
     return (trace_range(integrator, scene, integrator.patch_table(scene), task.start, task.count, task.seed)[0],
             shape_order(scene))
