@@ -64,7 +64,10 @@ class PhongBSDF(mi.BSDF):
 
     Lobe chosen by mean kd vs ks; the specular lobe sampled proportionally to cos^n
     around the mirror direction; ``pdf``/``eval_pdf`` consistent with ``sample``
-    (chi-square tested at n = 0, 2, 10, 50).
+    (chi-square tested at n = 0, 2, 10, 50). The context's lobe selection is honoured as
+    by Mitsuba's BSDFs: component 0 is the diffuse lobe (``DiffuseReflection``), 1 the
+    glossy one (``GlossyReflection``); a disabled lobe is left out of eval, pdf and
+    sample.
 
     Exposed parameters (``mi.traverse``): ``diffuse_reflectance.value`` and
     ``specular_reflectance.value`` (or the keys of a texture given there), ``exponent`` (a
@@ -134,16 +137,24 @@ class PhongBSDF(mi.BSDF):
         editable.undo(self, notify)
 
     # ------------------------------------------------------------ helpers
-    def _lobes(self, si, active):
-        kd, ks = self.kd.eval(si, active), self.ks.eval(si, active)
-        wd, ws = _mean(kd), _mean(ks)
-        p_diffuse = dr.select(wd + ws > 0, wd / (wd + ws), 1.0)
-        return kd, ks, p_diffuse
+    @staticmethod
+    def _enabled(ctx):
+        """(diffuse lobe enabled, glossy lobe enabled) by the context's type mask and
+        component selection (component 0: diffuse, 1: glossy), as Mitsuba's BSDFs do."""
+        return (ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0), ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1))
 
-    def _value_and_pdf(self, si, wo, active):
+    def _lobes(self, ctx, si, active):
+        kd, ks = self.kd.eval(si, active), self.ks.eval(si, active)
+        use_d, use_s = self._enabled(ctx)
+        wd, ws = _mean(kd) * use_d, _mean(ks) * use_s
+        p_diffuse = dr.select(wd + ws > 0, wd / (wd + ws), 1.0 if use_d else 0.0)
+        return kd * use_d, ks * use_s, p_diffuse
+
+    def _value_and_pdf(self, ctx, si, wo, active):
         wi = si.wi
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
-        kd, ks, p_diffuse = self._lobes(si, active)
+        active = (mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+                  & any(self._enabled(ctx)))
+        kd, ks, p_diffuse = self._lobes(ctx, si, active)
         n = self.m_exponent
         cos_alpha = dr.dot(_mirror_direction(wi), wo)
         cos_alpha_n = dr.select(cos_alpha > 0, dr.power(dr.maximum(cos_alpha, 0.0), n), 0.0)
@@ -154,23 +165,23 @@ class PhongBSDF(mi.BSDF):
 
     # ------------------------------------------------------------ BSDF interface
     def eval(self, ctx, si, wo, active=True):
-        return self._value_and_pdf(si, wo, active)[0]
+        return self._value_and_pdf(ctx, si, wo, active)[0]
 
     def pdf(self, ctx, si, wo, active=True):
-        return self._value_and_pdf(si, wo, active)[1]
+        return self._value_and_pdf(ctx, si, wo, active)[1]
 
     def eval_pdf(self, ctx, si, wo, active=True):
-        return self._value_and_pdf(si, wo, active)
+        return self._value_and_pdf(ctx, si, wo, active)
 
     def sample(self, ctx, si, sample1, sample2, active=True):
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
-        _, _, p_diffuse = self._lobes(si, active)
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & any(self._enabled(ctx))
+        _, _, p_diffuse = self._lobes(ctx, si, active)
         choose_diffuse = sample1 < p_diffuse
         wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
         lobe_local = square_to_power_cosine_hemisphere(sample2, self.m_exponent)
         wo_specular = mi.Frame3f(_mirror_direction(si.wi)).to_world(lobe_local)
         wo = dr.select(choose_diffuse, wo_diffuse, wo_specular)
-        value, pdf = self._value_and_pdf(si, wo, active)
+        value, pdf = self._value_and_pdf(ctx, si, wo, active)
         active &= pdf > 0
         bs = dr.zeros(mi.BSDFSample3f)
         bs.wo = wo

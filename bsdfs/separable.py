@@ -46,7 +46,9 @@ class SeparableBSDF(mi.BSDF):
 
     f(w', w) = (L~ - Le(w)) (L~ - Le(w')) / (L~ integral (L~ - Le) cos): albedo
     1 - Le(w)/L~, so scenes of such surfaces have radiance L~ for ANY emission profiles.
-    Surfaces without emission get f = 1/pi.
+    Surfaces without emission get f = 1/pi. One lobe, component 0: diffuse without
+    emission, glossy with it; a context that does not select it gets zero from eval and
+    pdf and no sample, as from Mitsuba's BSDFs.
 
     .. pluginparameters::
 
@@ -102,11 +104,10 @@ class SeparableBSDF(mi.BSDF):
         self.m_target = mi.Color3f(*[float(v) for v in self.target])
         self._checked = False
         self.salt = Salt()
-        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-        if self.emission is not None:
-            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-        self.m_components = [flags]
-        self.m_flags = flags
+        # one lobe (component 0): diffuse without emission, glossy with it
+        self.lobe = mi.BSDFFlags.DiffuseReflection if self.emission is None else mi.BSDFFlags.GlossyReflection
+        self.m_components = [self.lobe | mi.BSDFFlags.FrontSide]
+        self.m_flags = self.m_components[0]
         self._derive(p)
         editable.keep_valid(self)
 
@@ -220,9 +221,14 @@ class SeparableBSDF(mi.BSDF):
         return (target - self._emission(si, si.wi)) * (target - self._emission(si, wo)) / self._denominator(si)
 
     # ------------------------------------------------------------ BSDF interface
+    def _enabled(self, ctx):
+        """The context selects the lobe (component 0 of its type), as Mitsuba's BSDFs check."""
+        return ctx.is_enabled(self.lobe, 0)
+
     def eval(self, ctx, si, wo, active=True):
         self._check_binding()
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+        active = (mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+                  & self._enabled(ctx))
         return dr.select(active, self._f(si, wo) * mi.Frame3f.cos_theta(wo), 0.0)
 
     def _sample_direction(self, sample2):
@@ -237,7 +243,8 @@ class SeparableBSDF(mi.BSDF):
         return self._lobe.pdf(wo)
 
     def pdf(self, ctx, si, wo, active=True):
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+        active = (mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+                  & self._enabled(ctx))
         return dr.select(active, self._pdf_direction(wo), 0.0)
 
     def eval_pdf(self, ctx, si, wo, active=True):
@@ -245,12 +252,12 @@ class SeparableBSDF(mi.BSDF):
 
     def sample(self, ctx, si, sample1, sample2, active=True):
         self._check_binding()
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
+        active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & self._enabled(ctx)
         wo, pdf = self._sample_direction(sample2)
         active &= (pdf > 0) & (mi.Frame3f.cos_theta(wo) > 0)
         bs = dr.zeros(mi.BSDFSample3f)
         bs.wo, bs.pdf, bs.eta = wo, dr.select(active, pdf, 0.0), 1.0
-        bs.sampled_type = mi.UInt32(+self.m_flags)
+        bs.sampled_type = mi.UInt32(+self.lobe)
         bs.sampled_component = mi.UInt32(0)
         weight = self._f(si, wo) * mi.Frame3f.cos_theta(wo) / dr.select(active, pdf, 1.0)
         return bs, dr.select(active, weight, 0.0)

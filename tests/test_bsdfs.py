@@ -335,11 +335,11 @@ def phong_with_scaled_specular(scale):
     original = cls._value_and_pdf
     zero = mi.load_dict({"type": "uniform", "value": 0.0})
 
-    def value_and_pdf(self, si, wo, active):
-        value, pdf = original(self, si, wo, active)
+    def value_and_pdf(self, ctx, si, wo, active):
+        value, pdf = original(self, ctx, si, wo, active)
         kd, self.kd = self.kd, zero
         try:
-            specular, _ = original(self, si, wo, active)
+            specular, _ = original(self, ctx, si, wo, active)
         finally:
             self.kd = kd
         return value - (1.0 - scale) * specular, pdf
@@ -659,3 +659,53 @@ def test_separable_with_textured_emission_samples_cosine_weighted():
     ok, test = chi2(sample_func, lambda d: dr.maximum(d.z, 0.0) * dr.inv_pi, 192)
     assert ok, test.messages
     del bsdf, scene
+
+
+# ------------------------------------------------------------ the context's lobe selection
+def _context(type_mask=None, component=None):
+    ctx = mi.BSDFContext()
+    if type_mask is not None:
+        ctx.type_mask = int(type_mask)
+    if component is not None:
+        ctx.component = component
+    return ctx
+
+
+def test_phong_honours_the_contexts_lobe_selection():
+    """As Mitsuba's BSDFs: a context selecting the diffuse lobe (by type or as component
+    0) gets kd/pi cos and cosine samples of weight kd; the glossy lobe (component 1) the
+    rest; neither lobe: nothing. Before, phong ignored the selection (test of the test:
+    the full BSDF differs from each lobe)."""
+    bsdf = mi.load_dict({"type": "phong", "diffuse_reflectance": 0.3, "specular_reflectance": 0.6, "exponent": 10.0})
+    wi, wo = direction_pairs(budget.rng(180), 4000)
+    si = local_si(wi)
+    full = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo)))
+    diffuse = 0.3 / np.pi * np.maximum(wo[2], 0)[None] * (wi[2] > 0)[None]
+    for ctx in (_context(mi.BSDFFlags.DiffuseReflection), _context(component=0)):
+        value = np.array(bsdf.eval(ctx, si, mi.Vector3f(wo)))
+        assert np.allclose(value, np.broadcast_to(diffuse, value.shape), rtol=1e-5, atol=1e-7)
+        bs, w = bsdf.sample(ctx, si, mi.Float(budget.rng(181).random(4000)), mi.Point2f(budget.rng(182).random((2, 4000))))
+        ok = np.array(bs.pdf) > 0
+        assert ok.mean() > 0.3 and np.all(np.array(bs.sampled_type)[ok] == int(mi.BSDFFlags.DiffuseReflection))
+        assert np.allclose(np.array(w)[:, ok], 0.3, rtol=1e-4)
+    glossy = np.array(bsdf.eval(_context(component=1), si, mi.Vector3f(wo)))
+    assert np.allclose(glossy + np.broadcast_to(diffuse, glossy.shape), full, rtol=1e-5, atol=1e-7)
+    assert np.abs(glossy - full).max() > 1e-3 and np.abs(glossy).max() > 1e-3
+    none = _context(mi.BSDFFlags.DeltaReflection)
+    assert np.all(np.array(bsdf.eval(none, si, mi.Vector3f(wo))) == 0)
+    assert np.all(np.array(bsdf.pdf(none, si, mi.Vector3f(wo))) == 0)
+
+
+def test_separable_honours_the_contexts_lobe_selection():
+    scene = mi.load_dict({"type": "scene", "r": {"type": "rectangle",
+                                                 "bsdf": {"type": "separable", "target_radiance": 3.0}}})
+    _scenes.append(scene)
+    bsdf = scene.shapes()[0].bsdf()
+    wi, wo = direction_pairs(budget.rng(183), 1000)
+    si = local_si(wi)
+    on = np.array(bsdf.eval(_context(mi.BSDFFlags.DiffuseReflection), si, mi.Vector3f(wo)))
+    assert np.abs(on).max() > 0.1
+    for ctx in (_context(mi.BSDFFlags.GlossyReflection), _context(component=1)):
+        assert np.all(np.array(bsdf.eval(ctx, si, mi.Vector3f(wo))) == 0)
+        bs, w = bsdf.sample(ctx, si, mi.Float(0.5), mi.Point2f(0.3, 0.6))
+        assert np.all(np.array(bs.pdf) == 0) and np.all(np.array(w) == 0)
