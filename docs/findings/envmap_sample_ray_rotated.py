@@ -38,7 +38,7 @@ by 1/|cos beta|, and origins can move inside the bounding sphere.
 Suggested fix: build the disk around the world direction, `Frame3f(d_global)` (or rotate
 the offset with `m_to_world` as well).
 
-Run: `python docs/findings/envmap_sample_ray_rotated.py` (about 5 s on 2 cores).
+Run: `python docs/findings/envmap_sample_ray_rotated.py` (about 3 s on 2 cores).
 """
 import time
 

@@ -58,7 +58,7 @@ registering each scene's plugins under a per-scene domain (or passing the scene'
 instance set to the call); failing that, document the process-wide effect next to
 `mi.render`. Users: drop the failed scene and the exception (`del`), then `gc.collect()`.
 
-Run: `python docs/findings/failed_render_poisons_next.py` (about 5 s on 2 cores).
+Run: `python docs/findings/failed_render_poisons_next.py` (about 3 s on 2 cores).
 """
 import gc
 import time

@@ -38,7 +38,7 @@ is no longer unbiased, and the error grows with the albedo.
 Suggested fix: take the magnitude, `q = min(max(abs(throughput)) * eta^2, 0.95)` (the
 same applies to other integrators that derive q from a signed throughput).
 
-Run: `python docs/findings/ptracer_negative_emission_roulette.py` (about 10 s on 2 cores).
+Run: `python docs/findings/ptracer_negative_emission_roulette.py` (about 14 s on 2 cores).
 """
 import time
 

@@ -48,7 +48,7 @@ Suggested fix: derive each dimension's seed by hashing (seed, dimension index), 
 `sample_tea_32(m_permutation_seed, m_dimension_index)`, and likewise the scramble of
 `ldsampler`, instead of adding the index to the seed.
 
-Run: `python docs/findings/sampler_dimension_coupling.py` (about 5 s on 2 cores).
+Run: `python docs/findings/sampler_dimension_coupling.py` (about 11 s on 2 cores).
 """
 import time
 

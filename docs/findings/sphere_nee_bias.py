@@ -43,7 +43,7 @@ Suggested fix: use one and the same inside/outside test in `sample_direction` an
 `pdf_direction` (e.g. compute `dc_2 > radius_adj^2` in both), so that a direction's pdf
 is the pdf it was sampled with.
 
-Run: `python docs/findings/sphere_nee_bias.py` (about 10 s on 2 cores).
+Run: `python docs/findings/sphere_nee_bias.py` (about 14 s on 2 cores).
 """
 import time
 

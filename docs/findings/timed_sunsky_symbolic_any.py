@@ -33,18 +33,21 @@ variable!"; the script checks that in a child interpreter).
 Cause (located with a debugger, `catch throw`): `BaseSunskyEmitter::sample_direction` ->
 `BaseSunskyEmitter::sample_sky` (include/mitsuba/render/sunsky.h) ->
 `TimedSunskyEmitter::get_sampling_weights(sun_theta, active)` (src/emitters/timed_sunsky.cpp)
--> `jit_var_any` -> `jitc_var_eval`, which raises. `get_sampling_weights` branches on a
-horizontal reduction, `dr::any(...)`, of a mask computed from the per-lane sun elevation
-(in `timed_sunsky` the sun position depends on each ray's time, so the mask is symbolic
-inside the emitter call; `sunsky` precomputes it, which is why it works). A horizontal
-reduction needs the mask's value, which a symbolic variable does not have.
+-> `jit_var_any` -> `jitc_var_eval`, which raises. In the 3.9.1 binary,
+`get_sampling_weights` compares the per-lane sun elevation with a bound (`jit_var_le`),
+ands it with `active`, takes a horizontal reduction of that mask (`dr::any`, the
+`jit_var_any` call) and only then evaluates its weight table (`drjit::Texture::eval`).
+In `timed_sunsky` the sun position depends on each ray's time, so the mask is symbolic
+inside the recorded emitter call, and a horizontal reduction needs its value, which a
+symbolic variable does not have. (`sunsky`'s `get_sampling_weights` returns precomputed
+weights and makes no such call, which is why it works.)
 
 Suggested fix: use `dr::any_or<true>(...)` (as `sample_sky` does for its own branches) or
 drop the early-out in `TimedSunskyEmitter::get_sampling_weights`; the current development
 sources compute the sky-sampling weight with a `gather` instead (`get_sky_sampling_weight`),
 which would also remove it.
 
-Run: `python docs/findings/timed_sunsky_symbolic_any.py` (about 15 s on 2 cores).
+Run: `python docs/findings/timed_sunsky_symbolic_any.py` (about 3 s on 2 cores).
 """
 import gc
 import subprocess
