@@ -279,24 +279,24 @@ def test_a_fragment_names_meshes_relative_to_the_main_file(tmp_path, monkeypatch
 def test_path_entries_are_searched_first_and_kept_on_the_workers(tmp_path, monkeypatch):
     """<path> folders come before the main file's folder, the last declared first, and a
     relative one is relative to the declaring file's folder: a mesh in both the main
-    folder and 'assets' is the one in 'assets'; one found through '../shared' (outside
+    folder and 'assets' is the one in 'assets'; one found through '../common' (outside
     the main folder) is shipped in the same layout; 'empty' holds nothing but must exist
     on the worker (Mitsuba refuses a missing <path>); an absolute <path> and the file
     found through it are not shipped but checked by name."""
     src, shared = tmp_path / "src" / "scene", tmp_path / "shared_fs"
-    scene = write_xml(src / "scene.xml", '<path value="../shared"/>', '<path value="assets"/>',
+    scene = write_xml(src / "scene.xml", '<path value="../common"/>', '<path value="assets"/>',
                       '<path value="empty"/>', '<path value="%s"/>' % shared,
                       obj_shape("a", "x.obj"), obj_shape("b", "lib.obj"), obj_shape("c", "ext.obj"))
     write_obj(src / "x.obj", 1)
     write_obj(src / "assets" / "x.obj", 2)
-    write_obj(tmp_path / "src" / "shared" / "lib.obj", 3)
+    write_obj(tmp_path / "src" / "common" / "lib.obj", 3)
     write_obj(shared / "ext.obj", 4)
     os.makedirs(src / "empty")
     expected = vertex_counts(scene)
     assert expected == {"a": 6, "b": 9, "c": 12}
     b = scene_bundle.bundle(scene)
     assert sorted(b.files) == sorted([os.path.join("scene", "scene.xml"), os.path.join("scene", "assets", "x.obj"),
-                                      os.path.join("shared", "lib.obj")])
+                                      os.path.join("common", "lib.obj")])
     assert b.scene == os.path.join("scene", "scene.xml") and os.path.join("scene", "empty") in b.folders
     assert b.absolute == sorted([str(shared), str(shared / "ext.obj")])
     assert loaded_on_a_worker(b, tmp_path, monkeypatch) == expected

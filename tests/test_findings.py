@@ -1,0 +1,73 @@
+"""The standalone reproducers of the README's findings (docs/findings/*.py): every one
+compiles, needs only mitsuba/drjit/numpy and the standard library, carries a complete
+report in its docstring and is listed in docs/findings/README.md; the two fastest run end
+to end (a few seconds) and still reproduce their finding."""
+import ast
+import os
+import py_compile
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FINDINGS = os.path.join(ROOT, "docs", "findings")
+SCRIPTS = sorted(f for f in os.listdir(FINDINGS) if f.endswith(".py"))
+ALLOWED = {"mitsuba", "drjit", "numpy", "gc", "os", "subprocess", "sys", "tempfile", "time"}
+
+
+def test_there_are_reproducers():
+    assert len(SCRIPTS) >= 11, SCRIPTS
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_reproducer_compiles_and_is_standalone(name, tmp_path):
+    path = os.path.join(FINDINGS, name)
+    py_compile.compile(path, cfile=str(tmp_path / (name + "c")), doraise=True)
+    with open(path) as f:
+        tree = ast.parse(f.read())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add((node.module or "").split(".")[0])
+    assert imported <= ALLOWED, "%s imports %s" % (name, sorted(imported - ALLOWED))
+    doc = ast.get_docstring(tree)
+    for section in ("Expected", "Measured", "Cause", "Suggested fix", "Run: `python docs/findings/%s`" % name):
+        assert section in doc, "%s: the docstring has no %r" % (name, section)
+    assert "PASTE-OUTPUT" not in doc
+    if "mitsuba" in imported:
+        assert "Versions: Mitsuba 3.9.1, Dr.Jit 1.5.0" in doc and "Mitsuba 3.9.1, Dr.Jit 1.5.0, llvm_ad_rgb" in doc, name
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_reproducer_is_listed_in_the_index(name):
+    with open(os.path.join(FINDINGS, "README.md")) as f:
+        assert "[%s](%s)" % (name, name) in f.read()
+
+
+def run(name):
+    out = subprocess.run([sys.executable, os.path.join(FINDINGS, name)], capture_output=True, text=True,
+                         timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout
+
+
+UPDATE = " (if a new Mitsuba fixed this, update the README's Findings and docs/findings)"
+
+
+def test_spectra_reproducer_runs_and_still_reproduces():
+    out = run("rgb_variant_spectra_fail_at_render.py")
+    assert "irregular           load: OK; render: raises RuntimeError: [IrregularSpectrum] " \
+           "IrregularSpectrum::eval(): not implemented!" in out, out + UPDATE
+    assert "blackbody           load: OK; render: raises" in out, out + UPDATE
+    assert "spectrum (control)  load: OK; render: renders" in out, out
+
+
+def test_poisoning_reproducer_runs_and_still_reproduces():
+    out = run("failed_render_poisons_next.py")
+    lines = dict(line.split(".", 1) for line in out.splitlines() if line[:2].rstrip(".").isdigit())
+    assert lines["1"].endswith("renders") and lines["6"].endswith("renders"), out
+    assert "raises: [BlackBodySpectrum]" in lines["3"] and "raises: [BlackBodySpectrum]" in lines["8"], out + UPDATE
+    assert lines["9"].endswith("renders") and lines["10"].endswith("renders"), out
