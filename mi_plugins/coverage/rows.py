@@ -129,7 +129,7 @@ def _emitter_rows():
                 reference="ptracer" if name == "directionalarea" else "path") for name, d in e.items()]
     rows.append(Row("emitter:timed_sunsky", "timed_sunsky", na=(
         "Mitsuba 3.9.1's own path fails on it in the RGB variants (jit_var_schedule: not permitted, during the "
-        "render): there is no reference (docs/findings)")))
+        "render): there is no reference (docs/findings/timed_sunsky_symbolic_any.py)")))
     # the stage light textured, on an analytic shape and on a sphere
     rows.append(Row("case:textured_area_sphere", None, lambda r: stage(r, emitter={
         "type": "sphere", "center": [0.2, 1.9, 0.3], "radius": 0.2, "bsdf": diffuse(0.0),
@@ -278,13 +278,14 @@ def _texture_rows():
     spectra = {"d65": {"type": "d65", "scale": 1.0 / 30.0}, "blackbody": {"type": "blackbody", "temperature": 4000},
                "irregular": {"type": "irregular", "wavelengths": "400, 550, 700", "values": "2, 5, 3"},
                "regular": {"type": "regular", "wavelength_min": 400, "wavelength_max": 700, "values": "2, 5, 3"}}
-    broken = ("Mitsuba 3.9.1's own path fails on it in the RGB variants (jit_var_schedule: not permitted, "
-              "during the render): there is no reference (docs/findings)")
+    broken = ("Mitsuba 3.9.1 refuses it in RGB variants during the render (eval(): not implemented!, with path "
+              "too): there is no reference (docs/findings/rgb_variant_spectra_fail_at_render.py)")
     for name in ("irregular", "regular"):
         spectra.pop(name)
         rows.append(Row("texture:" + name, name, na=broken))
     rows.append(Row("texture:blackbody", "blackbody", na="Mitsuba refuses it outside spectral variants (during the "
-                                                         "render, with path too); the package renders RGB variants"))
+                                                         "render, with path too; docs/findings/rgb_variant_spectra_"
+                                                         "fail_at_render.py); the package renders RGB variants"))
     spectra.pop("blackbody")
     for name, d in spectra.items():
         rows.append(Row("texture:" + name, name, (lambda r, d=d: stage(r, emitter=dict(
