@@ -1,7 +1,7 @@
-"""Write the README's plugin reference from the plugins' class docstrings.
+"""Write the plugin reference (docs/reference.md) from the plugins' class docstrings.
 
-    python3 docs/generate_reference.py           # rewrite the generated part of README.md
-    python3 docs/generate_reference.py --check   # exit 1 when README.md is stale
+    python3 docs/generate_reference.py           # rewrite the generated part of docs/reference.md
+    python3 docs/generate_reference.py --check   # exit 1 when docs/reference.md is stale
 
 The docstring style and the conversion are described in ``mi_plugins/reference.py``;
 tests/test_docs.py runs the check.
@@ -14,15 +14,15 @@ import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 from mi_plugins import reference  # noqa: E402
 
-README = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")
+README = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference.md")
 
 if __name__ == "__main__":
     with open(README) as f:
         text = f.read()
     if "--check" in sys.argv[1:]:
         if reference.readme_block(text) != reference.markdown():
-            sys.exit("README.md's plugin reference is stale: run `python3 docs/generate_reference.py`")
-        print("README.md's plugin reference is up to date")
+            sys.exit("docs/reference.md is stale: run `python3 docs/generate_reference.py`")
+        print("docs/reference.md is up to date")
     else:
         with open(README, "w") as f:
             f.write(reference.update_readme(text))

@@ -21,9 +21,10 @@ own Python plugins)::
 
         {'type': 'name', ...}
 
-:func:`markdown` turns the docstrings of all plugins into the README's plugin reference
-(between :data:`BEGIN` and :data:`END`); ``python3 docs/generate_reference.py`` writes it
-and ``--check`` fails when the README is stale (a test runs the check).
+:func:`markdown` turns the docstrings of all plugins into the plugin reference of
+``docs/reference.md`` (between :data:`BEGIN` and :data:`END`); ``python3
+docs/generate_reference.py`` writes it and ``--check`` fails when it is stale (a test
+runs the check).
 """
 import importlib
 import inspect

@@ -1,4 +1,5 @@
 import gc
+import json
 import os
 import subprocess
 import sys
@@ -109,3 +110,18 @@ def pytest_collection_modifyitems(session, config, items):
 def pytest_terminal_summary(terminalreporter):
     for line in budget.summary():
         terminalreporter.write_line(line)
+
+
+# With pytest-xdist (``-n 2``), each worker process records its own statistical checks;
+# the controller collects them when a worker finishes, so the summary and the statistics
+# log cover the whole run.
+def pytest_sessionfinish(session):
+    if hasattr(session.config, "workeroutput"):
+        session.config.workeroutput["budget_records"] = json.dumps(budget._records)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    records = getattr(node, "workeroutput", {}).get("budget_records")
+    if records:
+        budget._records.extend(json.loads(records))

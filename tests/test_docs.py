@@ -1,4 +1,4 @@
-"""The documentation: the README's plugin reference is generated from the plugins' class
+"""The documentation: the plugin reference (docs/reference.md) is generated from the plugins' class
 docstrings and up to date; every docstring table lists exactly the parameters its plugin
 reads; code and docs speak of the project only."""
 import os
@@ -14,8 +14,8 @@ from test_parameters import TABLE
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def test_the_readme_reference_is_generated_from_the_docstrings():
-    with open(os.path.join(ROOT, "README.md")) as f:
+def test_the_reference_is_generated_from_the_docstrings():
+    with open(os.path.join(ROOT, "docs", "reference.md")) as f:
         text = f.read()
     assert reference.readme_block(text) == reference.markdown(), "run `python3 docs/generate_reference.py`"
 

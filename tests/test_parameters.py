@@ -25,7 +25,7 @@ from mi_plugins import params as params_module
 from mi_plugins.params import ParameterError, Params
 
 NAN, INF = float("nan"), float("inf")
-README = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")
+README = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "reference.md")
 
 
 class Ref:
@@ -375,7 +375,7 @@ def test_table_covers_every_parameter_the_plugins_read(monkeypatch):
 
 
 def _readme_tables():
-    """{plugin: [parameter names]} from the README's plugin reference tables."""
+    """{plugin: [parameter names]} from the plugin reference's tables (docs/reference.md)."""
     tables, current = {}, None
     with open(README, encoding="utf-8") as f:
         for line in f:
