@@ -8,11 +8,39 @@ Usage::
     import mi_plugins            # registers every plugin for the active variant
 
 After switching variants, call :func:`mi_plugins.register` again.
+
+Exception: when pytest loads the package's pytest plugin (``mi_plugins.pytest_plugin``,
+a ``pytest11`` entry point) before any Mitsuba variant is set, Python imports this
+package as the plugin's parent *bare*: no Mitsuba import, no registration. The plugin
+drops the bare package from ``sys.modules`` as soon as pytest registers it, so the next
+``import mi_plugins`` (after ``mi.set_variant``) is the full import described above.
 """
 import os
 import sys
 
-from . import _llvm
+
+def _imported_bare():
+    """True when this package is being imported only as the parent of its pytest plugin,
+    inside a pytest process, with no Mitsuba variant set yet (the full import would raise
+    VariantError there, and would cost every pytest session the Mitsuba start-up)."""
+    if "_pytest" not in sys.modules:
+        return False
+    mitsuba = sys.modules.get("mitsuba")
+    if mitsuba is not None and getattr(mitsuba, "variant", lambda: None)() is not None:
+        return False
+    target = __name__ + ".pytest_plugin"
+    frame = sys._getframe(1)
+    while frame is not None:   # Python imports a package before its submodule
+        if frame.f_code.co_name == "_find_and_load_unlocked" and frame.f_locals.get("name") == target:
+            return True
+        frame = frame.f_back
+    return False
+
+
+#: True while this module is the bare parent of the pytest plugin (see the module docstring)
+_BARE = _imported_bare()
+
+from . import _llvm  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -41,7 +69,8 @@ _ROOT = _source_checkout_root()
 if _ROOT is not None and _ROOT not in __path__:
     __path__.append(_ROOT)
 
-import mitsuba as mi  # noqa: E402
+if not _BARE:
+    import mitsuba as mi  # noqa: E402
 
 
 class VariantError(ImportError):
@@ -82,11 +111,16 @@ def register():
     return registry.register_all(check_variant())
 
 
-if mi.variant() is None and _launched_as_cli():
-    mi.set_variant(PRIMARY_VARIANT)
-elif mi.variant() is None and os.environ.get("MI_PLUGINS_VARIANT"):
-    # processes that import the package before any code of theirs runs, e.g. the Dask
-    # workers of a distributed render, which unpickle their task functions from it
-    mi.set_variant(os.environ["MI_PLUGINS_VARIANT"])
+if _BARE:
+    registered = {}
+else:
+    if mi.variant() is None and _launched_as_cli():
+        mi.set_variant(PRIMARY_VARIANT)
+    elif mi.variant() is None and os.environ.get("MI_PLUGINS_VARIANT"):
+        # processes that import the package before any code of theirs runs, e.g. the Dask
+        # workers of a distributed render, which unpickle their task functions from it
+        mi.set_variant(os.environ["MI_PLUGINS_VARIANT"])
 
-registered = register()
+    registered = register()
+    if __name__ + ".pytest_plugin" in sys.modules:  # loaded earlier with a bare parent
+        pytest_plugin = sys.modules[__name__ + ".pytest_plugin"]
