@@ -1,0 +1,157 @@
+"""The camera side of ``qmc_lighttrace``: eye rays, the visible point, final gathering.
+
+An eye ray follows purely specular surfaces (``camera.specular_chain``) to the first
+surface x with a smooth lobe, the *visible point*. There: one light sample and
+``gather_samples`` (SR) samples of x's BSDF (cosine rays on diffuse surfaces), combined
+by multiple importance sampling (power heuristic, the light sample against SR BSDF
+samples). Each gather sample continues (:meth:`CameraPaths.continuation`):
+
+- at its hit y, the emission seen, MIS-weighted against the previous vertex's light
+  sample (weight 1 after a delta or null lobe);
+- y purely diffuse (``qmc_surfaces``): y's direct light (a light sample and a BSDF
+  sample, MIS) plus the stored light of particles at their hit k >= 2, read from the
+  table the path's remaining depth allows (``qmc_store.Layers``); the path ends;
+- y non-diffuse (glossy, delta, null, mixed lobes): a light sample (MIS) and a BSDF
+  sample that continues the path, Russian roulette after ``RR_DEPTH`` segments.
+
+Every vertex counts its segments as Mitsuba's ``path`` does (``max_depth`` D: emission
+at segment <= D, a light sample or a continuation only below D), so the image agrees
+with ``path`` at every depth.
+"""
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins import seeds
+from mi_plugins.integrators.camera import specular_chain
+from mi_plugins.integrators.qmc_particles import patch_side
+from mi_plugins.integrators.qmc_surfaces import reflectance_toward
+
+#: camera-side continuations play Russian roulette from this many segments on
+#: (survival min(max throughput, 0.95)), as Mitsuba's path does
+RR_DEPTH = 5
+#: the depth limit standing for "unbounded"
+UNBOUNDED = 1 << 30
+
+
+def mis(pdf_a, pdf_b):
+    """Power heuristic a^2 / (a^2 + b^2); 0 where not a number (an infinite light pdf,
+    see ``mi_plugins.sampling``)."""
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    w = a2 / (a2 + b2)
+    return dr.select((a2 > 0) & dr.isfinite(w), w, 0.0)
+
+
+def light_sample(scene, si, bsdf, sample, active, bsdf_samples=1.0):
+    """One visibility-tested emitter sample reflected at ``si`` toward si.wi, MIS-weighted
+    against ``bsdf_samples`` BSDF samples (delta lights: weight 1)."""
+    ds, em_weight = scene.sample_emitter_direction(si, sample, True, active)
+    ok = active & (ds.pdf > 0)
+    f, pdf = bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), ok)
+    w = dr.select(ds.delta, 1.0, mis(ds.pdf, bsdf_samples * pdf))
+    return dr.select(ok, mi.Color3f(f) * mi.Color3f(em_weight) * w, 0.0)
+
+
+class CameraPaths:
+    """Camera paths of one render: ``tables`` (Color3f, read table t of patch side ps at
+    t x 2K + ps), ``layers`` (``qmc_store.Layers``), ``max_depth`` (-1: unbounded),
+    ``mirror_depth`` (-1: unbounded; delta bounces followed by the eye ray, and by each
+    gather continuation)."""
+
+    def __init__(self, scene, table, surfaces, layers, tables, max_depth, mirror_depth, hide_emitters):
+        self.scene, self.table, self.surfaces, self.layers, self.tables = scene, table, surfaces, layers, tables
+        self.depth = UNBOUNDED if max_depth < 0 else int(max_depth)
+        self.max_depth, self.mirror_depth, self.hide_emitters = int(max_depth), int(mirror_depth), hide_emitters
+
+    def visible_points(self, cam, seed):
+        """The eye rays of camera pass ``cam``: (chain, si at the visible point, its BSDF,
+        segments used to reach it (UInt32), active)."""
+        scene = self.scene
+        rng = seeds.pcg(cam.count, seed, "camera_path")
+        chain = specular_chain(scene, cam.ray, rng, max_depth=self.max_depth,
+                               max_bounces=None if self.mirror_depth < 0 else self.mirror_depth,
+                               hide_emitters=self.hide_emitters)
+        si = scene.ray_intersect(chain.ray, chain.reached)
+        used = chain.depth + 1
+        active = chain.reached & si.is_valid() & (used < self.depth)
+        return chain, si, si.bsdf(chain.ray), used, active
+
+    def estimate(self, cam, seed, gather_samples):
+        """(direct, indirect) at the visible points: the light sample and the gathers'
+        first-hit emission (direct); everything the gathers find beyond (indirect)."""
+        chain, si, bsdf, used, active = self.visible_points(cam, seed)
+        sr = int(gather_samples)
+        direct = light_sample(self.scene, si, bsdf, cam.sampler.next_2d(active), active, float(sr))
+        indirect = dr.zeros(mi.Color3f, cam.count)
+        rng = seeds.pcg(cam.count, seed, "camera_path", 1)
+        cam.sampler.schedule_state()
+        dr.eval(chain.emission, chain.throughput, si, bsdf, used, active, direct)
+        for _ in range(sr):    # the SR gather samples, one kernel each
+            bs, weight = bsdf.sample(mi.BSDFContext(), si, cam.sampler.next_1d(active), cam.sampler.next_2d(active),
+                                     active)
+            go = active & (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
+            first, beyond = self.continuation(si, bs, mi.Color3f(weight), used, go, rng, sr)
+            direct += first / sr
+            indirect += beyond / sr
+            cam.sampler.schedule_state()
+            dr.eval(direct, indirect, rng)
+        return chain, si, direct, indirect
+
+    def continuation(self, si, bs, weight, used, active, rng, sr=1):
+        """The radiance a BSDF sample ``bs`` (weight ``weight``) of vertex ``si`` brings
+        back, the vertex having used ``used`` segments; the sample's pdf counts ``sr``
+        times in the MIS weight of the emission it reaches (the vertex's light sample
+        was weighted against sr BSDF samples). Returns (emission at the first hit,
+        everything else)."""
+        scene, table, surfaces, layers, tables = self.scene, self.table, self.surfaces, self.layers, self.tables
+        depth = mi.UInt32(self.depth)
+        mirrors = mi.UInt32(self.mirror_depth if self.mirror_depth >= 0 else UNBOUNDED)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        n = dr.width(active)
+        active = mi.Bool(active) & (dr.select(delta, 1, 0) <= mirrors)
+        state = (si.spawn_ray(si.to_world(bs.wo)), dr.select(active, weight, 0.0), active,
+                 dr.full(mi.Bool, True, n), dr.full(mi.Bool, False, n), mi.UInt32(used), mi.SurfaceInteraction3f(si),
+                 bs.pdf * sr, delta, dr.select(delta, 1, 0) + dr.zeros(mi.UInt32, n), rng,
+                 dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n))
+
+        def body(ray, beta, active, first, last, used, prev, prev_pdf, prev_delta, mirrored, rng, at_first, beyond):
+            hit = scene.ray_intersect(ray, active)
+            segment = used + 1
+            # the emission seen, MIS-weighted against the previous vertex's light sample
+            emitter = hit.emitter(scene, active)
+            light_pdf = scene.pdf_emitter_direction(prev, mi.DirectionSample3f(scene, hit, prev), active & ~prev_delta)
+            w = dr.select(prev_delta, 1.0, mis(prev_pdf, light_pdf))
+            seen = dr.select(active, beta * mi.Color3f(emitter.eval(hit, active)) * w, 0.0)
+            at_first += dr.select(first, seen, 0.0)
+            beyond += dr.select(first, 0.0, seen)
+            go = active & hit.is_valid() & ~last & (segment < depth)
+            bsdf = hit.bsdf(ray)
+            diffuse = surfaces.diffuse(hit, go)
+            beyond += beta * light_sample(scene, hit, bsdf, mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
+            # a diffuse hit: the stored light of particle hits k >= 2 that fit in the depth left
+            index, readable = layers.read_table(mi.Int32(depth) - mi.Int32(segment))
+            read = go & diffuse & readable
+            stored = dr.gather(mi.Color3f, tables, index * (2 * table.count) + patch_side(table, hit), read)
+            beyond += dr.select(read, beta * stored * reflectance_toward(bsdf, hit, read), 0.0)
+            # the next segment: after a diffuse hit only to see its emission (MIS)
+            bs, weight = bsdf.sample(mi.BSDFContext(), hit, rng.next_float32(go),
+                                     mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
+            delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            beta = beta * mi.Color3f(weight)
+            survive = dr.minimum(dr.max(dr.abs(beta)), 0.95)
+            roulette = go & ~diffuse & (segment >= RR_DEPTH)
+            go &= ~roulette | (rng.next_float32(roulette) < survive)
+            beta = dr.select(roulette, beta / dr.select(survive > 0, survive, 1.0), beta)
+            mirrored = mirrored + dr.select(delta, 1, 0)
+            go &= (bs.pdf > 0) & dr.any(beta != 0) & (mirrored <= mirrors)
+            return (hit.spawn_ray(hit.to_world(bs.wo)), beta, go, mi.Bool(False), diffuse, segment,
+                    mi.SurfaceInteraction3f(hit), bs.pdf, delta, mirrored, rng,
+                    at_first, beyond)
+
+        out = dr.while_loop(state, lambda *s: s[2], body)
+        return out[11], out[12]
+
+    def first_patch_side(self, si, active):
+        """Patch side of the visible points on purely diffuse surfaces (neighbour
+        sharing), 0xFFFFFFFF elsewhere."""
+        diffuse = self.surfaces.diffuse(si, active)
+        return dr.select(diffuse, patch_side(self.table, si), 0xFFFFFFFF)
