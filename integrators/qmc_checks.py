@@ -20,7 +20,7 @@ PATCHABLE = ", ".join(sorted(k.lower() for k in tessellation.KINDS))
 
 def refuse_shapes_without_patches(plugin, scene):
     for shape in scene.shapes():
-        if not _is_mesh(shape) and tessellation.shape_kind(shape) not in tessellation.KINDS:
+        if tessellation.shape_kind(shape) not in tessellation.KINDS and not _is_mesh(shape):
             name = support.plugin_name(shape)
             raise support.Unsupported(
                 plugin, name, "the shape '%s' (plugin '%s')" % (shape.id(), name),

@@ -106,8 +106,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
      * - share_neighbors
        - bool
        - false
-       - average the gathered light beyond the first hit with the 8 neighbouring pixels
-         seeing the same side of the same diffuse patch (a smoothing bias)
+       - average the gather samples' results with the 8 neighbouring pixels seeing the
+         same side of the same diffuse patch (a smoothing bias)
      * - mirror_depth
        - int
        - -1
@@ -128,7 +128,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
      * - hide_emitters
        - bool
        - false
-       - do not show directly visible emitters
+       - hide directly visible emitters as Mitsuba does: eye rays pass through area
+         emitters and do not see the environment
 
     Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
     ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``; other
@@ -183,11 +184,11 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         refuse_one_direction_emitters(self.plugin, scene)
 
     # ------------------------------------------------------------------ preprocessing
-    def preprocess(self, scene, seed=0):
-        """Run the particle phase alone and evaluate the reported radiances; returns
-        (triangle_radiance (K, 2, 3), triangle_areas (K,))."""
+    def preprocess(self, scene, seed=0, report=True):
+        """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
+        returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
         self.check_scene(scene, None)
-        self._particle_phase(scene, seed, report=True)
+        self._particle_phase(scene, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
     def _particle_phase(self, scene, seed, report=False):
@@ -272,17 +273,17 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene = frame.scene
         table, tables = self._particle_phase(scene, frame.seed)
-        tables = tables.reshape(-1, 3) if tables.size else np.zeros((1, 3))
+        tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
         paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])
                                                                                     for c in range(3))),
                             self.max_depth, self.mirror_depth, self.hide_emitters)
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
-        chain, si, direct, indirect = paths.estimate(cam, frame.seed, self.gather_samples)
+        chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)
         if self.share_neighbors:
-            indirect = share_with_neighbours(indirect, paths.first_patch_side(si, si.is_valid()), cam)
-        cover = coverage(scene, scene.ray_intersect_preliminary(cam.ray), self.hide_emitters)
-        frame.put_camera(cam, chain.emission + chain.throughput * (direct + indirect), coverage=cover)
+            gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
+        cover = chain.surface | coverage(scene, dr.zeros(mi.PreliminaryIntersection3f, cam.count), self.hide_emitters)
+        frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered), coverage=cover)
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (

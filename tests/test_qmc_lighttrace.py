@@ -38,6 +38,16 @@ SPP = 64
 #: the unbounded cases (not seen in FACE_VIEW)
 LARGE_SPP = 256
 RUNS = 16
+#: a gathered diffuse point's direct light is sampled there, and the patches average only
+#: the light of particle hits k >= 2. Where the radiance is constant that part is not (its
+#: complement, the direct light, varies over a triangle): with the modelled triangles as
+#: patches the image mean is off by -0.39 % (mirror box), +0.12 % (Bekaert Sierpinski),
+#: -0.16 % (Bekaert box, 32 runs, SE <= 0.03 %); with the default patch size -0.022 +- 0.011 %,
+#: -0.026 +- 0.028 %, -0.003 +- 0.016 %. Those cases use the default patches and this bound
+PATCH_BIAS = 5e-4
+#: ... and the neighbour sharing keeps the modelled triangles (its point is sharing one
+#: triangle's gather results): bound of its measured -0.16 %
+TRIANGLE_PATCH_BIAS = 3e-3
 
 
 #: camera (origin, target, up) and fov of the middle of the face z = -1 of the box
@@ -111,6 +121,8 @@ def test_keller_cube_exact_truncated_value(sequence):
 #: case name -> view (None: the case's own view)
 UNBOUNDED_CASES = {"furnace_sierpinski": SIERPINSKI_VIEW, "bekaert_sierpinski": SIERPINSKI_VIEW,
                  "diffuse_sphere_mesh": None, "sierpinski_diffuse_simulated": SIERPINSKI_VIEW}
+#: cases whose emission varies from patch to patch: the default patches (PATCH_BIAS)
+SUBDIVIDED_CASES = ("bekaert_sierpinski",)
 
 
 @pytest.mark.parametrize("case_name", list(UNBOUNDED_CASES))
@@ -118,7 +130,8 @@ def test_unbounded_cases(case_name):
     """max_depth = -1 (the default): the Sierpinski cases in SIERPINSKI_VIEW; the sphere
     (no edges) in its own view, against the untruncated exact values."""
     case, images = unbounded_renders(case_name)
-    res = harness.compare(images, case.expected(-1), bias=case.known_bias)
+    bias = case.known_bias + (PATCH_BIAS if case_name in SUBDIVIDED_CASES else 0.0)
+    res = harness.compare(images, case.expected(-1), bias=bias)
     assert res["passed"], res["failures"]
 
 
@@ -129,7 +142,7 @@ def unbounded_renders(case_name):
     case = analytic.cases()[case_name](resolution=RES)
     if UNBOUNDED_CASES[case_name]:
         case = in_view(case, UNBOUNDED_CASES[case_name])
-    images = render_runs(case.scene(lighttrace()), LARGE_SPP, seed=0)
+    images = render_runs(case.scene(lighttrace(subdivide=case_name in SUBDIVIDED_CASES)), LARGE_SPP, seed=0)
     images.setflags(write=False)
     return case, images
 
@@ -164,9 +177,10 @@ def test_subdivided_cube_stays_exact():
     """The default splits the cube's 12 triangles (edge 2.8) into 12 x 196 sub-triangles:
     each still estimates the exact 1/2, with the noise of 196 x fewer particles per patch
     (400000 paths: RMS error 1.0e-2 measured, against 1.1e-3 for 12 patches at 100000),
-    and the area-weighted mean of all is 1/2 to 1e-9 (closed, constant albedo: every
-    particle's power is deposited, whatever patch it lands on)."""
-    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=400000, subdivide=True))
+    and the area-weighted mean of all is 1/2 to 1e-6 (closed, constant albedo: every
+    particle's power is deposited, whatever patch it lands on; sequence_depth = 29 leaves
+    less than 0.5^30 of it to the Russian roulette of later bounces)."""
+    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=400000, subdivide=True, sequence_depth=29))
     radiance, areas = scene.integrator().preprocess(scene, seed=budget.seed(0))
     assert radiance.shape == (12 * 196, 2, 3) and np.isclose(areas.sum(), 24.0)
     error = radiance[:, 0, 0] - 0.5
@@ -260,7 +274,7 @@ def test_neighbour_sharing_passes_and_lowers_the_error():
     case, plain, shared = share_renders(0)
     exact = case.expected(-1)
     for images in (plain, shared):
-        res = harness.compare(images, exact)
+        res = harness.compare(images, exact, bias=TRIANGLE_PATCH_BIAS)
         assert res["passed"], res["failures"]
     # measured over 24 seed blocks: 1.056 .. 1.072 (median 1.065, log-SD 0.0044): sharing lowers the
     # RMSE by ~6 % here; the bound asks for at least half of that
@@ -379,7 +393,7 @@ def mirror_box_images(case, k=32):
 def mirror_renders(mirror_depth):
     """RUNS renders of mirror_box() with ``mirror_depth`` (computed once per session: the
     mirror_depth = 0 test reuses the mirror_depth = 1 renders as its test of the test)."""
-    scene = mirror_box().scene(lighttrace(mirror_depth=mirror_depth))
+    scene = mirror_box().scene(lighttrace(mirror_depth=mirror_depth, subdivide=True))
     images = render_runs(scene, (2 if mirror_depth else 1) * SPP, seed=12 + mirror_depth)
     images.setflags(write=False)
     return images
@@ -405,9 +419,9 @@ def test_mirror_depth_follows_the_mirror_and_gather_rays_follow_it_too():
     images = mirror_renders(1)
     fraction, seen_ff, _ = mirror_box_images(case)
     exact = case.expected(-1)
-    ok = harness.compare(images, exact)
+    ok = harness.compare(images, exact, bias=PATCH_BIAS)
     assert ok["passed"], ok["failures"]
-    bad = harness.compare(images, exact - a * L * seen_ff)
+    bad = harness.compare(images, exact - a * L * seen_ff, bias=PATCH_BIAS)
     assert not bad["passed"] and bad["z"] > 20, (bad["z"], bad["failures"])
     assert 0.15 < a * L * float(seen_ff.mean()) < 0.20
     assert 0.45 < fraction.mean() < 0.55                     # the mirror is half of the view
@@ -425,10 +439,10 @@ def test_mirror_depth_zero_stops_eye_rays_at_the_mirror():
     fraction, _, direct_ff = mirror_box_images(case)
     exact = case.expected(-1)
     expected = exact * (1.0 - fraction) - a * L * direct_ff
-    res = harness.compare(images, expected)
+    res = harness.compare(images, expected, bias=PATCH_BIAS)
     assert res["passed"], res["failures"]
     close_t(res["mean"], float(np.mean(exact * (1.0 - fraction))) - a * L * float(direct_ff.mean()), res["se"],
-            res["runs"], what="image mean with black mirror pixels")
+            res["runs"], slack=PATCH_BIAS, what="image mean with black mirror pixels")
     full = np.pad(fraction[..., 0] == 1.0, 1)
     # pixels whose footprint and 4 neighbours' footprints see only the mirror
     only_mirror = full[1:-1, 1:-1] & full[:-2, 1:-1] & full[2:, 1:-1] & full[1:-1, :-2] & full[1:-1, 2:]
@@ -482,11 +496,11 @@ LIGHTS = {
 }
 
 
-def ordinary(integrator, camera, fov=40.0, **objects):
-    """A Mitsuba scene of ``objects`` (shape and emitter dicts) seen by a RES x RES camera."""
+def ordinary(integrator, camera, fov=40.0, res=RES, film=None, **objects):
+    """A Mitsuba scene of ``objects`` (shape and emitter dicts) seen by a res x res camera."""
     origin, target, up = camera
     sensor = {"type": "perspective", "fov": fov, "to_world": T().look_at(origin=origin, target=target, up=up),
-              "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"}}}
+              "film": dict({"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}, **(film or {}))}
     return mi.load_dict(dict(type="scene", integrator=integrator, sensor=sensor, **objects), optimize=False)
 
 
@@ -497,13 +511,13 @@ def sheet(z, half, bsdf):
     return dict(geometry.mesh_shape(mesh, "sheet"), bsdf=bsdf)
 
 
-def against_path(make, spp, seed, runs=RUNS, bias=0.0, path_spp=None):
-    """Renders of ``make(integrator)`` by qmc_lighttrace (unbounded) and Mitsuba's path
-    (independent seeds); asserts |qmc mean - path mean| <= t bound x combined SE + bias +
-    float rounding. Returns the statistics and both image stacks."""
+def against_path(make, spp, seed, runs=RUNS, bias=0.0, path_spp=None, max_depth=-1, **params):
+    """Renders of ``make(integrator)`` by qmc_lighttrace (``params``) and Mitsuba's path at
+    ``max_depth`` (independent seeds); asserts |qmc mean - path mean| <= t bound x combined
+    SE + bias + float rounding. Returns the statistics and both image stacks."""
     out = {}
-    for name, integrator, s in (("path", {"type": "path"}, 2 * seed),
-                                ("qmc", lighttrace(), 2 * seed + 1)):
+    for name, integrator, s in (("path", {"type": "path", "max_depth": max_depth}, 2 * seed),
+                                ("qmc", lighttrace(max_depth=max_depth, **params), 2 * seed + 1)):
         images = render_runs(make(integrator), (path_spp or spp) if name == "path" else spp, s, runs)
         means = images.reshape(runs, -1).mean(axis=1)
         out[name], out[name + "_se"], out[name + "_images"] = means.mean(), means.std(ddof=1) / np.sqrt(runs), images
@@ -616,30 +630,32 @@ def irradiance_estimate(scene, table, rows, samples=1 << 18, seed=0):
 @pytest.mark.parametrize("light", ["area"] + list(LIGHTS))
 def test_particles_carry_the_power_of_every_emitter_type(light):
     """A lone `twosided` sheet (front albedo 0.8, back 0.3) under each kind of light: the
-    reflected radiance the particles leave on each side of its two triangles, over 16
-    seeds of 50000 paths, matches albedo / pi x the irradiance from Mitsuba's own emitter
-    sampling as `path` uses it (2^18 points per triangle and side). Measured |z| <= 1.8;
-    each of the 12 values is checked to 0.15-3.4 % (envmap's dim back side). Before the
-    fix a rotated envmap gave 1.67 x too much (Mitsuba 3.9's envmap sample_ray) and the
-    sides were mixed (constant sky: 1.10 on both instead of 0.80 and 0.30)."""
+    irradiance the particles leave on each side of its two triangles at their first hit
+    (layer 0; max_depth = 3 stops them there), over 16 seeds of 50000 paths, matches the
+    irradiance from Mitsuba's own emitter sampling as `path` uses it (2^18 points per
+    triangle and side); the reported reflected radiance is albedo / pi x it. Measured
+    |z| <= 1.8; each of the 12 values is checked to 0.15-3.4 % (envmap's dim back side).
+    Before the fix a rotated envmap gave 1.67 x too much (Mitsuba 3.9's envmap
+    sample_ray) and the sides were mixed (constant sky: 1.10 on both instead of 0.80 and
+    0.30)."""
     objects = {"light": lamp(0.8, 5.0) if light == "area" else LIGHTS[light]()}
-    scene = ordinary(lighttrace(samples=50000), ABOVE,
+    scene = ordinary(lighttrace(samples=50000, max_depth=3), ABOVE,
                      sheet=sheet(0.0, 0.5, {"type": "twosided", "front": diffuse(SIDE_ALBEDO[0]),
                                             "back": diffuse(SIDE_ALBEDO[1])}), **objects)
     integrator = scene.integrator()
     runs = []
     for j in range(RUNS):
-        integrator.preprocess(scene, seed=budget.seed(40 + j))
-        runs.append(integrator.reflected_radiance.copy())
+        integrator.preprocess(scene, seed=budget.seed(40 + j), report=j == RUNS - 1)
+        runs.append(integrator.irradiance[0].copy())
     rows = integrator.patch_shapes == "sheet"
-    runs = np.stack(runs)[:, rows]
-    irradiance, irradiance_se = irradiance_estimate(scene, MeshTable(scene, "test", subdivide=False), rows, seed=40)
     albedo = np.array(SIDE_ALBEDO)[None, :, None]
-    expected, expected_se = albedo * irradiance / np.pi, albedo * irradiance_se / np.pi
+    np.testing.assert_allclose(integrator.reflected_radiance[rows], albedo / np.pi * runs[-1][rows], rtol=1e-6)
+    runs = np.stack(runs)[:, rows]
+    expected, expected_se = irradiance_estimate(scene, MeshTable(scene, "test", subdivide=False), rows, seed=40)
     se = np.hypot(runs.std(axis=0, ddof=1) / np.sqrt(RUNS), expected_se)
     assert expected[:, 0].min() > 0.05
     close_t(runs.mean(axis=0), expected, se, RUNS, slack=harness.FLOAT_TOLERANCE * expected,
-            what="particle radiance per triangle side")
+            what="particle irradiance per triangle side")
 
 
 @pytest.mark.parametrize("params", [{}, {"epsilon": 1e-3, "batch": 500, "max_samples": 2000}])
@@ -692,4 +708,6 @@ def test_shapes_without_patches_are_refused():
     with pytest.raises(Exception) as info:
         mi.render(mi.load_dict(d, optimize=False), spp=1)
     text = str(info.value) + str(info.value.__cause__ or "")
-    assert "qmc_lighttrace: shape 'inst' (Instance) is neither a triangle mesh" in text, text
+    assert ("qmc_lighttrace: the shape 'inst' (plugin 'instance') is not supported: qmc_lighttrace stores light per "
+            "patch, and only triangle meshes and Mitsuba's cylinder, disk, rectangle, sphere are divided into patches; "
+            "convert the shape to a triangle mesh") in text, text
