@@ -132,14 +132,16 @@ class QMCLightTraceIntegrator(CoreIntegrator):
          emitters and do not see the environment
 
     Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
-    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``; other
-    shapes are refused by name). After a render, ``integrator.irradiance`` (numpy (layers,
-    K, 2, 3): hit-count layer, patch, side (0: the one its normal points to), RGB),
-    ``triangle_areas``, ``patch_shapes`` (shape id per patch), ``paths_used`` and
-    ``delta_e_history`` hold the preprocessing result; ``integrator.preprocess(scene,
-    seed)`` runs it alone and also sets ``triangle_radiance`` (numpy (K, 2, 3): L0 +
-    reflected, the particles' light reflected by the BSDF at the patch centroid, 0 on
-    non-diffuse patches) and ``reflected_radiance``.
+    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``).
+    Refused before any work, by name: other shapes, participating media, emitters that
+    emit in one direction only (``directionalarea``: no light sample reaches them), and
+    deposit layers x patches above 2^24 or half the available memory. After a render,
+    ``integrator.irradiance`` (numpy (layers, K, 2, 3): hit-count layer, patch, side (0:
+    the one its normal points to), RGB), ``triangle_areas``, ``patch_shapes`` (shape id
+    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result;
+    ``integrator.preprocess(scene, seed)`` runs it alone and also sets
+    ``triangle_radiance`` (numpy (K, 2, 3): L0 + reflected, the particles' light reflected
+    by the BSDF at the patch centroid, 0 on non-diffuse patches) and ``reflected_radiance``.
 
     .. code-block:: python
 
