@@ -77,21 +77,28 @@ class CameraPaths:
         """(chain, si, light, gathered) at the visible points: the light sample's share of
         the direct light, and the average of the gather samples (the rest of the direct
         light, seen at their first hit, and everything beyond; one sum, since the two parts
-        of a sample are strongly anti-correlated where emitting surfaces also reflect)."""
+        of a sample are strongly anti-correlated where emitting surfaces also reflect).
+        The SR gather samples of an eye ray are SR consecutive lanes of one loop."""
         chain, si, bsdf, used, active = self.visible_points(cam, seed)
-        sr = int(gather_samples)
+        sr, n = int(gather_samples), cam.count
         light = light_sample(self.scene, si, bsdf, cam.sampler.next_2d(active), active, float(sr))
-        gathered = dr.zeros(mi.Color3f, cam.count)
-        rng = seeds.pcg(cam.count, seed, "camera_path", 1)
+        # the gather samples' numbers from the camera sampler, lane i * SR + j for sample j of eye lane i
+        numbers = [dr.zeros(mi.Float, n * sr) for _ in range(3)]
+        slots = dr.arange(mi.UInt32, n) * sr
+        for j in range(sr):        # SR draws of the sampler (a small constant)
+            u1, u2 = cam.sampler.next_1d(active), cam.sampler.next_2d(active)
+            for target, value in zip(numbers, (u1, u2.x, u2.y)):
+                dr.scatter(target, value, slots + j)
         cam.sampler.schedule_state()
-        dr.eval(chain.emission, chain.throughput, si, bsdf, used, active, light)
-        for _ in range(sr):    # the SR gather samples, one kernel each
-            bs, weight = bsdf.sample(mi.BSDFContext(), si, cam.sampler.next_1d(active), cam.sampler.next_2d(active),
-                                     active)
-            go = active & (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
-            gathered += self.continuation(si, bs, mi.Color3f(weight), used, go, rng, sr) / sr
-            cam.sampler.schedule_state()
-            dr.eval(gathered, rng)
+        dr.eval(chain.emission, chain.throughput, si, bsdf, used, active, light, numbers)
+        eye = dr.arange(mi.UInt32, n * sr) // sr
+        at, go = dr.gather(mi.SurfaceInteraction3f, si, eye), dr.gather(mi.Bool, active, eye)
+        vertex = dr.gather(mi.BSDFPtr, bsdf, eye, go)
+        bs, weight = vertex.sample(mi.BSDFContext(), at, numbers[0], mi.Point2f(numbers[1], numbers[2]), go)
+        go &= (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
+        rng = seeds.pcg(n * sr, seed, "camera_path", 1)
+        result = self.continuation(at, bs, mi.Color3f(weight), dr.gather(mi.UInt32, used, eye), go, rng, sr)
+        gathered = mi.Color3f(*(dr.block_sum(result[c], sr) / sr for c in range(3)))
         return chain, si, light, gathered
 
     def continuation(self, si, bs, weight, used, active, rng, sr=1):

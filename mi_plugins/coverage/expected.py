@@ -28,16 +28,18 @@ class Spec:
 STOCHASTIC_RAY = Spec("stochastic_ray", {"type": "stochastic_ray", "iterations": 24, "burn_in": 8}, spp=32)
 RAY_BUNDLE = Spec("ray_bundle", {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12,
                                  "burn_in": 6}, spp=1, scale_spp=False)
-#: what qmc_lighttrace refuses: media (every package integrator), shapes it cannot divide into
-#: patches, an emitter that only a light path can reach
+#: what qmc_lighttrace refuses: media and being wrapped by 'aov' / 'moment' (every package
+#: integrator), shapes it cannot divide into patches, an emitter that only a light path can reach
 MEDIA_ROWS = ("medium:homogeneous", "medium:heterogeneous", "phase:isotropic", "phase:hg", "phase:rayleigh",
               "phase:sggx", "phase:tabphase", "phase:blendphase", "volume:gridvolume", "volume:constvolume",
               "case:camera_in_medium")
 MEDIUM_REFUSAL = r"qmc_lighttrace: the participating medium .* is not supported"
+WRAPPED = r"qmc_lighttrace: being wrapped by an integrator that calls it once per camera ray .* is not supported"
 NO_PATCHES = r"qmc_lighttrace: the shape 'subject' \(plugin '%s'\) is not supported: .*divided into patches"
 QMC_LIGHTTRACE = Spec(
-    "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 20000}, spp=64,
+    "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 10000}, spp=64,
     refused=dict({row: MEDIUM_REFUSAL for row in MEDIA_ROWS},
+                 **{"integrator:" + name: WRAPPED for name in ("aov", "moment")},
                  **{"shape:" + name: NO_PATCHES % plugin for name, plugin in (
                      ("instance", "instance"), ("shapegroup", "instance"), ("ellipsoids", "ellipsoids"),
                      ("ellipsoidsmesh", "ellipsoidsmesh"), ("bsplinecurve", "bsplinecurve"),
