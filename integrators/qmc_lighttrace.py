@@ -138,7 +138,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     deposit layers x patches above 2^24 or half the available memory. After a render,
     ``integrator.irradiance`` (numpy (layers, K, 2, 3): hit-count layer, patch, side (0:
     the one its normal points to), RGB), ``triangle_areas``, ``patch_shapes`` (shape id
-    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result;
+    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result (none
+    is traced for a render with ``max_depth`` <= 3, which reads no stored light);
     ``integrator.preprocess(scene, seed)`` runs it alone and also sets
     ``triangle_radiance`` (numpy (K, 2, 3): L0 + reflected, the particles' light reflected
     by the BSDF at the patch centroid, 0 on non-diffuse patches) and ``reflected_radiance``.
@@ -210,12 +211,14 @@ class QMCLightTraceIntegrator(CoreIntegrator):
             if total.shape != shape:
                 raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene and "
                                  "max_depth need shape %s" % (total.shape, shape))
+        elif self.layers.tables == 0 and not report:   # max_depth <= 3: a render reads no stored light
+            total, done = np.zeros(shape), 0
         elif self.epsilon is None:   # fixed N: chunks of CHUNK paths (the estimate is the same)
             total, done = trace_range(self, scene, table, 0, self.samples, seed)[0], self.samples
         else:
             total, done = self._adaptive_phase(scene, table, seed)
         self.paths_used = done
-        self.irradiance = total / done / areas[None, :, None, None]
+        self.irradiance = total / max(done, 1) / areas[None, :, None, None]
         self.reflected_radiance = self.triangle_radiance = None
         if report:
             reflectance, emission = self._side_values(scene, table)
