@@ -12,7 +12,8 @@ import numpy as np
 from mi_plugins import qmc
 from mi_plugins.integrators.core import CoreIntegrator, coverage
 from mi_plugins.integrators.neighbours import share_with_neighbours
-from mi_plugins.integrators.qmc_checks import refuse_one_direction_emitters, refuse_shapes_without_patches
+from mi_plugins.integrators.qmc_checks import (check_gather_lanes, refuse_one_direction_emitters,
+                                               refuse_shapes_without_patches)
 from mi_plugins.integrators.qmc_gather import CameraPaths
 from mi_plugins.integrators.qmc_particles import dimensions, trace_range
 from mi_plugins.integrators.qmc_store import Layers, check_memory
@@ -277,6 +278,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
+        check_gather_lanes(self.plugin, frame, self.gather_samples)
         table, tables = self._particle_phase(scene, frame.seed)
         tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
         paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])

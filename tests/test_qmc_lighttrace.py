@@ -824,16 +824,22 @@ def test_every_max_depth_matches_path(depth):
     assert res["path"] > 0.02
 
 
-def test_deposit_layers_beyond_the_memory_limit_are_refused():
-    """A max_depth whose deposit layers x patches exceed the documented limit is refused
-    before any work, by the parameter reader's message."""
-    scene = ordinary(lighttrace(max_depth=10 ** 6), INSIDE, box={"type": "cube", "flip_normals": True,
-                                                                 "bsdf": diffuse()}, light=lamp(0.5))
-    with pytest.raises(Exception) as info:
-        mi.render(scene, spp=1)
-    text = str(info.value) + str(info.value.__cause__ or "")
-    assert ("qmc_lighttrace: parameter max_depth=1000000 is invalid; valid range: -1 (unbounded: 2 layers) or a "
-            "depth whose 999998 deposit layers x 24 patches fit: at most 16777216 patch layers") in text, text
+def test_work_beyond_the_limits_is_refused():
+    """A max_depth whose deposit layers x patches exceed the documented limit, and eye
+    rays x gather samples beyond 2^32 lanes, are refused before any work, by the
+    parameter reader's message (the paths' 2^32 limit: test_bad_parameters)."""
+    for params, spp, message in (
+            ({"max_depth": 10 ** 6}, 1, "qmc_lighttrace: parameter max_depth=1000000 is invalid; valid range: -1 "
+             "(unbounded: 2 layers) or a depth whose 999998 deposit layers x 24 patches fit: at most 16777216 "
+             "patch layers"),
+            ({"gather_samples": 1024}, 1 << 24, "qmc_lighttrace: parameter gather_samples=1024 is invalid; valid "
+             "range: a count whose 4294967296 eye rays x gather samples")):
+        scene = ordinary(lighttrace(**params), INSIDE, box={"type": "cube", "flip_normals": True, "bsdf": diffuse()},
+                         light=lamp(0.5))
+        with pytest.raises(Exception) as info:
+            mi.render(scene, spp=spp)
+        text = str(info.value) + str(info.value.__cause__ or "")
+        assert message in text, text
 
 
 # ------------------------------------------------------------------ behaviour
