@@ -195,13 +195,13 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         self._particle_phase(scene, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
-    def _particle_phase(self, scene, seed, report=False):
+    def _particle_phase(self, scene, seed, report=False, rendering=False):
         """The particle phase (or the one given to :meth:`use_particles`); keeps its numpy
         results (with ``report``, also ``reflected_radiance`` and ``triangle_radiance``,
         which take a BSDF and emitter evaluation per patch) and returns (patch table, read
         tables (tables, K, 2, 3)). The table is never kept on the integrator: it holds the
         scene, which holds the integrator, a cycle that would keep every rendered scene
-        alive."""
+        alive. ``rendering``: skip the phase where a render reads no stored light."""
         table = self.patch_table(scene)
         check_memory(self.plugin, self.layers, table.count, self.max_depth)
         areas = table.areas_np
@@ -212,7 +212,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
             if total.shape != shape:
                 raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene and "
                                  "max_depth need shape %s" % (total.shape, shape))
-        elif self.layers.tables == 0 and not report:   # max_depth <= 3: a render reads no stored light
+        elif rendering and self.layers.tables == 0:   # max_depth <= 3: a render reads no stored light
             total, done = np.zeros(shape), 0
         elif self.epsilon is None:   # fixed N: chunks of CHUNK paths (the estimate is the same)
             total, done = trace_range(self, scene, table, 0, self.samples, seed)[0], self.samples
@@ -279,7 +279,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene = frame.scene
         check_gather_lanes(self.plugin, frame, self.gather_samples)
-        table, tables = self._particle_phase(scene, frame.seed)
+        table, tables = self._particle_phase(scene, frame.seed, rendering=True)
         tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
         paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])
                                                                                     for c in range(3))),
