@@ -98,6 +98,7 @@ class CameraPaths:
         go &= (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
         rng = seeds.pcg(n * sr, seed, "camera_path", 1)
         result = self.continuation(at, bs, mi.Color3f(weight), dr.gather(mi.UInt32, used, eye), go, rng, sr)
+        dr.eval(result)    # one kernel (block_sum of each channel alone would launch the loop three times)
         gathered = mi.Color3f(*(dr.block_sum(result[c], sr) / sr for c in range(3)))
         return chain, si, light, gathered
 
