@@ -780,17 +780,17 @@ def coverage_scene(key, res=8):
     return lambda integrator: mi.load_dict(dict(build(res), integrator=integrator))
 
 
-@pytest.mark.parametrize("key, spp, path_spp", [("case:light_facing_ceiling", 64, 1024),
-                                                ("case:negative_emission", 32, 256),
-                                                ("package:simulated_area", 32, 256)])
-def test_emission_cases_match_path(key, spp, path_spp):
+@pytest.mark.parametrize("key, spp, path_spp, runs", [("case:light_facing_ceiling", 64, 1024, RUNS),
+                                                      ("case:negative_emission", 32, 256, FEW_RUNS),
+                                                      ("package:simulated_area", 32, 256, FEW_RUNS)])
+def test_emission_cases_match_path(key, spp, path_spp, runs):
     """An area light facing a ceiling 1 cm above it; an area light of radiance -2; the
     package's simulated_area with the uniform estimator on a wall (negative estimates):
     the image means agree with `path` and every pixel is finite. Before: +230 % (z +18:
     the patches averaged the ceiling's direct light, steep above the light, where the
     floor reads it; +26 % with patches of 0.05, within the noise at 0.02), and the
     unsigned fixed-point sums wrapped negative deposits: image means of 3e5 and 4e3."""
-    res = against_path(coverage_scene(key), spp, seed=80 + len(key), path_spp=path_spp, subdivide=True)
+    res = against_path(coverage_scene(key), spp, seed=80 + len(key), runs=runs, path_spp=path_spp, subdivide=True)
     assert np.all(np.isfinite(res["qmc_images"]))
 
 
@@ -828,7 +828,7 @@ def test_every_max_depth_matches_path(depth):
     depth, delta light included: 2 (direct light only), 3 (no stored light read), 5 (the
     stored light read at a diffuse point holds the particle hits that fit in what the
     camera path has left: k <= 3, less after mirror chains and glossy continuations)."""
-    res = against_path(depth_room, 32, seed=90 + depth, path_spp=256, max_depth=depth, subdivide=True)
+    res = against_path(depth_room, 32, seed=90 + depth, runs=FEW_RUNS, path_spp=256, max_depth=depth, subdivide=True)
     assert res["path"] > 0.02
 
 
