@@ -148,7 +148,8 @@ class CameraPaths:
             return (hit.spawn_ray(hit.to_world(bs.wo)), beta, go, diffuse, segment,
                     mi.SurfaceInteraction3f(hit), bs.pdf, delta, mirrored, rng, result)
 
-        return dr.while_loop(state, lambda *s: s[2], body)[10]
+        with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):     # (traced once: see qmc_particles)
+            return dr.while_loop(state, lambda *s: s[2], body)[10]
 
     def first_patch_side(self, si, active):
         """Patch side of the visible points on purely diffuse surfaces (neighbour
@@ -194,9 +195,10 @@ def camera_chain(scene, ray, rng, max_depth, mirror_depth, hide_emitters):
         return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
 
     n = dr.width(ray.o)
-    state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
-                           dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
-                          lambda *state: state[3], body)
+    with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
+                               dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
+                              lambda *state: state[3], body)
     chain = SpecularChain()
     chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
     return chain
