@@ -10,7 +10,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import qmc
-from mi_plugins.integrators.core import CoreIntegrator, coverage
+from mi_plugins.integrators.core import CoreIntegrator
 from mi_plugins.integrators.neighbours import share_with_neighbours
 from mi_plugins.integrators.qmc_checks import (check_gather_lanes, refuse_one_direction_emitters,
                                                refuse_shapes_without_patches)
@@ -289,7 +289,9 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)
         if self.share_neighbors:
             gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
-        cover = chain.surface | coverage(scene, dr.zeros(mi.PreliminaryIntersection3f, cam.count), self.hide_emitters)
+        # the film's alpha as Mitsuba makes it (core.coverage): the eye ray met a surface that is
+        # not hidden, or the scene has a visible environment
+        cover = chain.surface | mi.Bool(scene.environment() is not None and not self.hide_emitters)
         frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered), coverage=cover)
 
     def to_string(self):

@@ -92,6 +92,8 @@ class FixedPoint:
     :meth:`rescaled`)."""
 
     LIMIT = 2.0 ** 61
+    #: the largest scale (a float32 of the kernels: 2^128 would be infinite)
+    MAX_SCALE = 2.0 ** 100
 
     def __init__(self, slots, scale):
         self.scale = float(scale)
@@ -100,7 +102,7 @@ class FixedPoint:
     @staticmethod
     def scale_for(bound):
         """A power of two such that ``bound`` (a guess of the sum of all |values|) fits."""
-        return 2.0 ** np.floor(np.log2(FixedPoint.LIMIT / max(float(bound), 1e-30)))
+        return min(2.0 ** np.floor(np.log2(FixedPoint.LIMIT / max(float(bound), 1e-30))), FixedPoint.MAX_SCALE)
 
     def add(self, value, slot, active):
         """Add Float ``value`` to ``slot`` where ``active``."""

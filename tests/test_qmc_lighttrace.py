@@ -683,6 +683,15 @@ def test_a_scene_without_emitters_renders_black(params):
     assert all(np.all(image == 0) for image in images)
 
 
+def test_a_black_light_renders_black():
+    """A lamp of radiance 0: the particles carry no power and deposit nothing; the image
+    is black (no NaN), like path's."""
+    scene = ordinary(lighttrace(), INSIDE, box={"type": "cube", "flip_normals": True, "bsdf": diffuse()},
+                     lamp=dict(lamp(0.5), emitter={"type": "area", "radiance": rgb_dict(0.0)}))
+    image = np.array(mi.render(scene, spp=2, seed=budget.seed(51)))
+    assert np.all(image == 0) and np.all(scene.integrator().irradiance == 0)
+
+
 # ------------------------------------------------------------------ every BSDF, depth, emission, alpha
 # The measured defects of the radiosity-only version, each against Mitsuba's `path` on a
 # small scene (8 x 8 pixels; before -> after, relative bias of the image mean +- SE):
