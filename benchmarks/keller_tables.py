@@ -1,6 +1,6 @@
 """Reproduce the empty-cube rows of Tables 1-3 of Keller's report with `qmc_lighttrace`.
 
-Cube: 12 triangles, rho = 1/2, L0 = 1/4, exact radiance 1/2, M = 29. For
+Cube: 12 triangles, rho = 1/2, L0 = 1/4, exact radiance 1/2, M = 29 (sequence_depth). For
 N = 10^3, 10^4, 10^5 particle paths it prints
 
     Delta_a(N)  = sqrt( sum_k (L_k - 1/2)^2 / K )                       (Table 2)
@@ -37,7 +37,7 @@ EPSILONS = (1e-3, 3.3e-4, 1e-4)
 
 def cube_integrator(sequence, scramble, **kw):
     case = analytic.keller_cube(resolution=4)
-    d = {"type": "qmc_lighttrace", "sequence": sequence, "scramble": scramble, "max_depth": 29}
+    d = {"type": "qmc_lighttrace", "sequence": sequence, "scramble": scramble, "sequence_depth": 29}
     d.update(kw)
     scene = case.scene(d)
     return scene, scene.integrator()

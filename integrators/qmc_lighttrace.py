@@ -1,22 +1,31 @@
 """``qmc_lighttrace``: Keller's quasi-Monte Carlo light tracing in the radiosity setting
 (A. Keller, "A quasi-Monte Carlo algorithm for the global illumination problem in the
-radiosity setting", 1994): a particle preprocess that deposits power on patches, then a
-render with direct light and final gathering. The user reference is the class docstring.
+radiosity setting", 1994): a particle preprocess that deposits irradiance on the
+purely diffuse patches (``qmc_particles``), then a render with direct light and final
+gathering that continues paths across every other surface (``qmc_gather``). The user
+reference is the class docstring.
 """
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc, seeds
-from mi_plugins.integrators.camera import specular_chain
+from mi_plugins import qmc
 from mi_plugins.integrators.core import CoreIntegrator
 from mi_plugins.integrators.neighbours import share_with_neighbours
-from mi_plugins.integrators.qmc_particles import patch_side, trace_range
+from mi_plugins.integrators.qmc_checks import (check_gather_lanes, refuse_one_direction_emitters,
+                                               refuse_shapes_without_patches)
+from mi_plugins.integrators.qmc_gather import CameraPaths
+from mi_plugins.integrators.qmc_particles import dimensions, trace_range
+from mi_plugins.integrators.qmc_store import Layers, check_memory
+from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward
 from mi_plugins.meshtable import MeshTable, patch_parameters
 from mi_plugins.params import Params
-from mi_plugins.sampling import direct_light
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
+#: the particle index is 32-bit: at most this many paths (samples, batch, max_samples)
+MAX_PATHS = 1 << 32
+#: at most this many gather samples per eye ray
+MAX_GATHER = 1024
 
 
 class QMCLightTraceIntegrator(CoreIntegrator):
@@ -27,22 +36,35 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     -----------------------------------------------------------------
 
     Preprocess: N particle paths from the lights (surfaces, environment, delta lights),
-    path i driven by point i of a (2M + 4)-dimensional sequence (0-1: light choice and
-    position, 2-3: direction, two per bounce), depositing power on every patch hit up to
-    M + 1 hits, per side (a one-sided BSDF hit from behind absorbs; ``twosided`` keeps
-    its sides apart), in 64-bit fixed point (a seed gives the same patch radiances every
-    time; only the film's float splats may differ in the last bits under load);
-    L_k = rho_k / (pi |A_k|) x incoming power (eqs. 7-8); optional adaptive termination
-    (section 4: batches until the area-weighted change Delta E, relative to the emitted
-    power / pi, stays below ``epsilon`` for ``patience`` batches). Render: eye rays from the
-    sensor's sampler (mirrors and glass followed), emission + direct light (one light
-    sample and one BSDF sample combined by multiple importance sampling: a light sample
-    alone has infinite variance where emitting surfaces meet) + SR cosine final-gather rays
-    reading L_k of the side they reach (following mirrors). The image contains paths of up
-    to M + 3 segments: compare with ``case.expected(max_depth=M + 3)`` (or use a large M).
+    path i driven by point i of a (4 + 3M)-dimensional sequence (0-1: light choice and
+    position, 2-3: direction, then lobe choice and direction of each of the first M =
+    ``sequence_depth`` bounces; later bounces pseudo-random with Russian roulette, so
+    paths are unbounded and unbiased). A particle deposits its irradiance on every
+    *purely diffuse* patch side it hits (only a ``DiffuseReflection`` lobe, no
+    ``bumpmap``/``normalmap``: the radiance they reflect is the same in every direction),
+    with the shading-normal factor |cos_sh| / |cos_geo|; other surfaces store nothing and
+    scatter it on with any BSDF, weighted as Mitsuba's ``path`` weighs the same path.
+    Deposits are kept per hit count (layers) in 64-bit signed fixed point (negative
+    emission included; a seed gives the same deposits every time); optional adaptive
+    termination (section 4: batches until the area-weighted change Delta E, relative to
+    the emitted power / pi, stays below ``epsilon`` for ``patience`` batches).
+    Render: eye rays from the sensor's sampler, through mirrors and glass to the visible
+    point x; there emission + one light sample + SR BSDF (on diffuse x: cosine) gather
+    samples, by multiple importance sampling. A gather sample reaching a purely diffuse
+    y reads y's direct light (light and BSDF sample, MIS) plus the stored light of
+    particle hits k >= 2, x rho(y) / pi (Keller's L_d computed separately, at y: the
+    patches never average the direct light's steep gradients); a non-diffuse y continues
+    the path (light sample, BSDF sample) to the next diffuse surface. ``max_depth`` is
+    Mitsuba's: every estimate holds exactly the paths of at most D segments (the table
+    read at y holds the particle hits that fit in the depth the camera path has left).
 
     .. pluginparameters::
 
+     * - max_depth
+       - int
+       - -1
+       - Mitsuba's: -1 unbounded, D >= 0 paths of at most D segments (1: emission only).
+         A finite D keeps max(D - 2, 1) deposit layers: D x patches is limited by memory
      * - sequence
        - string
        - ``'sobol'``
@@ -52,17 +74,16 @@ class QMCLightTraceIntegrator(CoreIntegrator):
        - bool
        - true
        - randomise the sequence with the scramble of ``mi_plugins.qmc`` (the render
-         seed selects it); ``false``: the plain sequence
-     * - max_depth
+         seed selects it); ``false``: the plain sequence (and a fixed stream beyond it)
+     * - sequence_depth
        - int
-       - 29
-       - M >= 0 (2M + 4 dimensions must fit the sequence: Halton/Faure M <= 126); paths
-         of up to M + 3 segments. 29 as in Keller's tables: on the Cornell box (albedo up
-         to 0.89) M = 6 left the image 0.8 % dark, 29 0.15 %
+       - 10
+       - Keller's M >= 0: bounces drawn from the sequence (4 + 3M dimensions must fit:
+         Halton/Faure M <= 84); later bounces play Russian roulette. No truncation
      * - samples
        - int
        - 100000
-       - N >= 1 paths (when ``epsilon`` is not given)
+       - N paths, 1 .. 2^32 (the particle index is 32-bit; when ``epsilon`` is not given)
      * - epsilon
        - float
        - none
@@ -70,7 +91,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
      * - batch
        - int
        - 1000
-       - Delta N >= 1
+       - Delta N, 1 .. 2^32
      * - patience
        - int
        - 2
@@ -78,29 +99,28 @@ class QMCLightTraceIntegrator(CoreIntegrator):
      * - max_samples
        - int
        - 10^7
-       - >= 1, cap for the adaptive termination
+       - 1 .. 2^32, cap for the adaptive termination
      * - gather_samples
        - int
        - 4
-       - SR >= 1 final-gather rays per eye ray. 4 measured best at equal time on the
-         Cornell box (RMSE x sqrt(seconds) away from the light 0.0019, with 16: 0.0026,
-         with 1: 0.0022; `path` 0.0032)
+       - SR gather samples per eye ray, 1 .. 1024
      * - share_neighbors
        - bool
        - false
-       - average gather results with the 8 neighbouring pixels seeing the same triangle
+       - average the gather samples' results with the 8 neighbouring pixels seeing the
+         same side of the same diffuse patch (a smoothing bias)
      * - mirror_depth
        - int
-       - 8
-       - >= 0 delta bounces followed by eye and gather rays
+       - -1
+       - -1: follow delta and null lobes as far as ``max_depth`` allows; k >= 0: at most
+         k of them per eye ray and per gather sample (truncates: darker than ``path``)
      * - patch_size
        - float
        - scene diagonal / 24
        - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
-         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64),
-         whatever the modelling. Radiance is constant per patch: a smaller h lowers the
-         discretisation bias (``mi.cornell_box()``: -0.8 % at the default 0.144, -0.5 %
-         at 0.08) and raises the patch count (memory, noise per patch)
+         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64).
+         Stored irradiance is constant per patch: a smaller h lowers the discretisation
+         bias of the indirect light and raises the patch count (memory, noise per patch)
      * - subdivide
        - bool
        - true
@@ -109,25 +129,30 @@ class QMCLightTraceIntegrator(CoreIntegrator):
      * - hide_emitters
        - bool
        - false
-       - do not show directly visible emitters
+       - hide directly visible emitters as Mitsuba does: eye rays pass through area
+         emitters and do not see the environment
 
     Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
-    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``; other
-    shapes are refused by name). After a render, ``integrator.triangle_radiance`` (numpy (K, 2, 3): patch, side (0: the one its normal
-    points to), RGB; L0 + reflected), ``reflected_radiance``, ``triangle_areas``,
-    ``patch_shapes`` (shape id per patch), ``paths_used`` and ``delta_e_history`` hold the
-    preprocessing result;
-    ``integrator.preprocess(scene, seed)`` runs it alone. Radiosity setting: the matrix
-    reports cases with non-diffuse BSDFs as not applicable.
+    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``).
+    Refused before any work, by name: other shapes, participating media, emitters that
+    emit in one direction only (``directionalarea``: no light sample reaches them), and
+    deposit layers x patches above 2^24 or half the available memory. After a render,
+    ``integrator.irradiance`` (numpy (layers, K, 2, 3): hit-count layer, patch, side (0:
+    the one its normal points to), RGB), ``triangle_areas``, ``patch_shapes`` (shape id
+    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result (none
+    is traced for a render with ``max_depth`` <= 3, which reads no stored light);
+    ``integrator.preprocess(scene, seed)`` runs it alone and also sets
+    ``triangle_radiance`` (numpy (K, 2, 3): L0 + reflected, the particles' light reflected
+    by the BSDF at the patch centroid, 0 on non-diffuse patches) and ``reflected_radiance``.
 
     .. code-block:: python
 
-        {'type': 'qmc_lighttrace', 'sequence': 'sobol', 'max_depth': 29, 'epsilon': 1e-3, 'gather_samples': 16}
+        {'type': 'qmc_lighttrace', 'sequence': 'sobol', 'sequence_depth': 10, 'epsilon': 1e-3, 'gather_samples': 16}
 
     .. code-block:: xml
 
         <integrator type="qmc_lighttrace"><string name="sequence" value="faure"/>
-            <integer name="max_depth" value="29"/><integer name="samples" value="100000"/></integrator>
+            <integer name="max_depth" value="-1"/><integer name="samples" value="100000"/></integrator>
     """
 
     plugin = "qmc_lighttrace"
@@ -135,67 +160,87 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     def __init__(self, props):
         super().__init__(props)
         p = Params(props, "qmc_lighttrace")
+        self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
-        self.max_depth = p.int("max_depth", 29, lo=0)
-        self.samples = p.int("samples", 100000, lo=1)
+        self.sequence_depth = p.int("sequence_depth", 10, lo=0)
+        self.samples = p.int("samples", 100000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
         self.epsilon = p.float("epsilon", None, lo=0, lo_open=True, note="optional: adaptive termination")
-        self.batch = p.int("batch", 1000, lo=1)
+        self.batch = p.int("batch", 1000, lo=1, hi=MAX_PATHS)
         self.patience = p.int("patience", 2, lo=1)
-        self.max_samples = p.int("max_samples", 10000000, lo=1)
-        self.gather_samples = p.int("gather_samples", 4, lo=1)
+        self.max_samples = p.int("max_samples", 10000000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
+        self.gather_samples = p.int("gather_samples", 4, lo=1, hi=MAX_GATHER)
         self.share_neighbors = p.bool("share_neighbors", False)
-        self.mirror_depth = p.int("mirror_depth", 8, lo=0)
+        self.mirror_depth = p.int("mirror_depth", -1, lo=-1, note="-1: as far as max_depth allows")
         self.patch_size, self.subdivide = patch_parameters(p)
-        self.dims, limit = 2 * self.max_depth + 4, qmc.max_dim(self.sequence)   # lcg, independent: no limit
+        self.dims, limit = dimensions(self.sequence_depth), qmc.max_dim(self.sequence)   # lcg, independent: no limit
         if self.dims > limit:
-            raise p.conflict(("max_depth", "sequence"), "max_depth <= %d with sequence '%s': max_depth=%d needs %d "
-                             "dimensions; sequence '%s' has %d" % ((limit - 4) // 2, self.sequence, self.max_depth,
-                                                                    self.dims, self.sequence, limit))
-        self.triangle_radiance = self.reflected_radiance = self.triangle_areas = None
+            raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
+                             "sequence_depth=%d needs %d dimensions; sequence '%s' has %d"
+                             % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
+        self.layers = Layers(self.max_depth)
+        self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
         self.paths_used, self.delta_e_history, self.particles = 0, [], None
 
+    def check_scene(self, scene, sensor):
+        super().check_scene(scene, sensor)
+        refuse_shapes_without_patches(self.plugin, scene)
+        refuse_one_direction_emitters(self.plugin, scene)
+
     # ------------------------------------------------------------------ preprocessing
-    def preprocess(self, scene, seed=0):
-        """Run the particle phase; returns (triangle_radiance (K, 2, 3), triangle_areas (K,))."""
-        self._particle_phase(scene, seed)
+    def preprocess(self, scene, seed=0, report=True):
+        """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
+        returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
+        self.check_scene(scene, None)
+        self._particle_phase(scene, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
-    def _particle_phase(self, scene, seed):
+    def _particle_phase(self, scene, seed, report=False, rendering=False):
         """The particle phase (or the one given to :meth:`use_particles`); keeps its numpy
-        results and returns the patch table (never kept on the integrator: it holds the
-        scene, which holds the integrator, a cycle that would keep every rendered scene alive)."""
+        results (with ``report``, also ``reflected_radiance`` and ``triangle_radiance``,
+        which take a BSDF and emitter evaluation per patch) and returns (patch table, read
+        tables (tables, K, 2, 3)). The table is never kept on the integrator: it holds the
+        scene, which holds the integrator, a cycle that would keep every rendered scene
+        alive. ``rendering``: skip the phase where a render reads no stored light."""
         table = self.patch_table(scene)
+        check_memory(self.plugin, self.layers, table.count, self.max_depth)
         areas = table.areas_np
         self.delta_e_history = []
+        shape = (self.layers.count, table.count, 2, 3)
         if self.particles is not None:
             total, done = self.particles
-            if total.shape != (table.count, 2, 3):
-                raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene has %d "
-                                 "patches, shape (%d, 2, 3)" % (total.shape, table.count, table.count))
+            if total.shape != shape:
+                raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene and "
+                                 "max_depth need shape %s" % (total.shape, shape))
+        elif rendering and self.layers.tables == 0:   # max_depth <= 3: a render reads no stored light
+            total, done = np.zeros(shape), 0
         elif self.epsilon is None:   # fixed N: chunks of CHUNK paths (the estimate is the same)
             total, done = trace_range(self, scene, table, 0, self.samples, seed)[0], self.samples
         else:
             total, done = self._adaptive_phase(scene, table, seed)
         self.paths_used = done
-        self.reflected_radiance = total / done / (np.pi * areas[:, None, None])
-        self.triangle_radiance = self.reflected_radiance + self._triangle_emission(scene, table)
+        self.irradiance = total / max(done, 1) / areas[None, :, None, None]
+        self.reflected_radiance = self.triangle_radiance = None
+        if report:
+            reflectance, emission = self._side_values(scene, table)
+            self.reflected_radiance = self.irradiance.sum(axis=0) * reflectance
+            self.triangle_radiance = self.reflected_radiance + emission
         self.triangle_areas = areas
         self.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
-        return table
+        return table, self.layers.tables_from(self.irradiance)
 
     def _adaptive_phase(self, scene, table, seed):
-        """Batches of ``batch`` paths until the patch radiances change by less than
+        """Batches of ``batch`` paths until the patch irradiances change by less than
         ``epsilon`` ``patience`` times in a row (or ``max_samples``): (deposits, paths)."""
         areas = table.areas_np
-        total, emitted = np.zeros((table.count, 2, 3)), np.zeros(3)
+        total, emitted = np.zeros((self.layers.count, table.count, 2, 3)), np.zeros(3)
         done, below, previous = 0, 0, None
         while done < self.max_samples:
             n = min(self.batch, self.max_samples - done)
             deposit, power = trace_range(self, scene, table, done, n, seed)
             total, emitted, done = total + deposit, emitted + power, done + n
-            current = total / done / (np.pi * areas[:, None, None])
-            norm = max(float(emitted.mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
+            current = total.sum(axis=0) / done / (np.pi * areas[:, None, None])
+            norm = max(float(np.abs(emitted).mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
             if previous is not None:
                 d = np.linalg.norm(current - previous, axis=2)
                 delta_e = np.sqrt(np.sum(d * d * areas[:, None]) / np.sum(areas)) / norm
@@ -213,61 +258,42 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     def use_particles(self, deposits, paths):
         """Render with a particle phase traced elsewhere (e.g. summed over the ranges of a
         distributed render, :func:`mi_plugins.integrators.qmc_particles.trace_range`):
-        ``deposits`` (K, 2, 3) reflected power per patch side of ``paths`` paths; None
-        returns to tracing the phase in every render."""
+        ``deposits`` (layers, K, 2, 3) irradiance flux per layer and patch side of ``paths``
+        paths; None returns to tracing the phase in every render."""
         self.particles = None if deposits is None else (np.asarray(deposits, dtype=np.float64), int(paths))
 
-    def _triangle_emission(self, scene, table):
-        """Emitted radiance of each patch side (K, 2, 3), at its centroid along the normal."""
+    def _side_values(self, scene, table):
+        """(f toward the normal on each side, emitted radiance along it), (K, 2, 3) each,
+        at each patch's centroid: f = rho / pi on purely diffuse patches, else 0."""
         si = table.surface_interaction(dr.arange(mi.UInt32, table.count), mi.Point2f(1.0 / 3.0, 1.0 / 3.0))
-        emitter, sides = si.emitter(scene), []
+        emitter, bsdf = si.emitter(scene), si.bsdf()
+        diffuse = Surfaces(scene).diffuse(si, True)
+        f, e = [], []
         for z in (1.0, -1.0):
             si.wi = mi.Vector3f(0, 0, z)
-            sides.append(np.array(emitter.eval(si, emitter != None), dtype=np.float64).T)  # noqa: E711
-        return np.stack(sides, axis=1)
+            f.append(np.array(reflectance_toward(bsdf, si, diffuse), dtype=np.float64).T)
+            e.append(np.array(emitter.eval(si, emitter != None), dtype=np.float64).T)  # noqa: E711
+        return np.stack(f, axis=1), np.stack(e, axis=1)
 
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
-        table = self._particle_phase(scene, frame.seed)
-        reflected = mi.Color3f(*(mi.Float(self.reflected_radiance[..., c].ravel()) for c in range(3)))
+        check_gather_lanes(self.plugin, frame, self.gather_samples)
+        table, tables = self._particle_phase(scene, frame.seed, rendering=True)
+        tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
+        paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])
+                                                                                    for c in range(3))),
+                            self.max_depth, self.mirror_depth, self.hide_emitters)
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
-        rng = seeds.pcg(cam.count, frame.seed, "camera_path")
-        path = specular_chain(scene, cam.ray, rng, max_bounces=self.mirror_depth, hide_emitters=self.hide_emitters)
-        si = scene.ray_intersect(path.ray, path.reached)
-        active = path.reached & si.is_valid()
-        bsdf = si.bsdf(path.ray)
-        # direct light: one light sample and one BSDF sample combined by multiple importance sampling
-        # (a light sample alone has infinite variance where emitting surfaces meet, e.g. furnace edges)
-        u = cam.sampler
-        direct = direct_light(scene, si, bsdf, u.next_2d(), active, (u.next_1d(), u.next_2d()))
-        gather = self._gather(scene, table, cam.sampler, rng, si, bsdf, active, reflected)
+        chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)
         if self.share_neighbors:
-            gather = share_with_neighbours(gather, dr.select(active, patch_side(table, si), 0xFFFFFFFF), cam)
-        frame.put_camera(cam, path.emission + path.throughput * (direct + gather))
-
-    def _gather(self, scene, table, sampler, rng, si, bsdf, active, reflected):
-        """SR cosine-distributed final-gather rays (on the side the eye ray arrived from)
-        reading the reflected radiance L_k of the patch side they reach; a ray that reaches
-        a purely specular surface follows it and takes the full radiance found behind it
-        (its emission is not covered by the light sample)."""
-        ctx = mi.BSDFContext()
-        gather = dr.zeros(mi.Color3f, dr.width(si.p))
-        for _ in range(self.gather_samples):  # SR gather rays (a small constant)
-            d = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
-            pdf = mi.warp.square_to_cosine_hemisphere_pdf(d)
-            d.z = dr.mulsign(d.z, si.wi.z)  # the side the eye ray came from (twosided BSDFs)
-            ok = active & (pdf > 0)
-            weight = mi.Color3f(bsdf.eval(ctx, si, d, ok)) / dr.select(ok, pdf, 1.0)
-            chain = specular_chain(scene, si.spawn_ray(si.to_world(d)), rng, max_bounces=self.mirror_depth)
-            end = scene.ray_intersect(chain.ray, ok & chain.reached)
-            hit = ok & chain.reached & end.is_valid()
-            stored = dr.select(hit, dr.gather(mi.Color3f, reflected, patch_side(table, end), hit), 0.0)
-            value = dr.select(ok & (chain.depth > 0), chain.emission + chain.throughput * stored, stored)
-            gather += dr.select(ok, weight * value, 0.0)
-        return gather / self.gather_samples
+            gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
+        # the film's alpha as Mitsuba makes it (core.coverage): the eye ray met a surface that is
+        # not hidden, or the scene has a visible environment
+        cover = chain.surface | mi.Bool(scene.environment() is not None and not self.hide_emitters)
+        frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered), coverage=cover)
 
     def to_string(self):
-        return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, samples=%d]" % (
-            self.sequence, self.max_depth, self.samples)
+        return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (
+            self.sequence, self.max_depth, self.sequence_depth, self.samples)

@@ -139,13 +139,16 @@ class MeshTable:
         sizes = [len(part["level"]) for _, part in meshes]
         base = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         parent_base = np.zeros(len(parts), dtype=np.int64)
-        first, level, corners = [np.zeros(1, np.int64)], [np.ones(1, np.int64)], [np.zeros((1, 3, 3))]
+        # two placeholder entries: a width-1 array would enter kernels as a scalar whose
+        # memory alignment (different at every allocation) changes the kernel's code, and
+        # with it the kernel cache key: a recompilation at almost every render
+        first, level, corners = [np.zeros(2, np.int64)], [np.ones(2, np.int64)], [np.zeros((2, 3, 3))]
         for (index, part), b in zip(meshes, base):   # one entry per mesh (not per triangle)
             parent_base[index] = b
             first.append(self.face_offsets[index] + part["first"])
             level.append(part["level"])
             corners.append(part["parents"])
-        # a placeholder entry last: never empty (gathers need an array)
+        # the placeholder entries last: never empty (gathers need an array)
         first, level, corners = (np.concatenate(a[1:] + a[:1]) for a in (first, level, corners))
         self._first = mi.UInt32(first)
         self._level = mi.UInt32(level)

@@ -21,6 +21,8 @@ PLUGIN_OF_CLASS = {
     "SpotLight": "spot", "Projector": "projector", "PointLight": "point", "DirectionalEmitter": "directional",
     "AreaLight": "area", "DirectionalArea": "directionalarea", "EnvironmentMapEmitter": "envmap",
     "ConstantBackgroundEmitter": "constant", "SunskyEmitter": "sunsky", "TimedSunskyEmitter": "timed_sunsky",
+    "Instance": "instance", "Ellipsoids": "ellipsoids", "EllipsoidsMesh": "ellipsoidsmesh",
+    "BSplineCurve": "bsplinecurve", "LinearCurve": "linearcurve", "SDFGrid": "sdfgrid",
 }
 
 

@@ -39,7 +39,10 @@ MAX_CELLS = 64
 
 
 def shape_kind(shape):
-    """Mitsuba's class name of ``shape`` ('Rectangle', 'Sphere', 'PLYMesh', ...)."""
+    """Mitsuba's class name of ``shape`` ('Rectangle', 'Sphere', 'PLYMesh', ...; class_name()
+    where available: printing a mesh to read it costs milliseconds)."""
+    if hasattr(shape, "class_name"):
+        return shape.class_name()
     return str(shape).split("[", 1)[0].strip() or type(shape).__name__
 
 

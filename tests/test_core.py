@@ -14,7 +14,8 @@ INTEGRATORS = {
     # burn_in 8: the furnace's power defect (albedo 1/2) is then ~3e-4 (4 left a -0.4 % bias)
     "stochastic_ray": {"type": "stochastic_ray", "iterations": 16, "burn_in": 8},
     "ray_bundle": {"type": "ray_bundle", "iterations": 12, "burn_in": 4, "resolution": 16, "chains": 8},
-    "qmc_lighttrace": {"type": "qmc_lighttrace", "samples": 5000, "max_depth": 6, "gather_samples": 2},
+    "qmc_lighttrace": {"type": "qmc_lighttrace", "samples": 5000, "sequence_depth": 6, "max_depth": 9,
+                       "gather_samples": 2},
 }
 
 

@@ -1,7 +1,9 @@
-"""Keller's `qmc_lighttrace` against the analytic cases.
+"""Keller's `qmc_lighttrace` against the analytic cases, and against Mitsuba's `path` on
+ordinary scenes (every BSDF, every depth, the measured defects of its radiosity-only
+version).
 
-The eye-ray phase's direct light combines one light sample and one BSDF sample by
-multiple importance sampling. A light sample alone (one area sample of the emitters)
+The eye-ray phase's direct light combines one light sample with the gather samples'
+BSDF samples by multiple importance sampling. A light sample alone (one area sample of the emitters)
 has an infinite-variance tail near an edge where two emitting faces meet (f Le G / pdf
 grows like 1/d^2 with the distance d to the edge): in the Keller cube's own view single
 samples reached 1000 L, 10 % of the checks (16 runs x spp 256) detected only more than
@@ -11,12 +13,12 @@ are checked in a view of the middle of a face (FACE_VIEW), the Sierpinski cases 
 view of the tetrahedron (SIERPINSKI_VIEW), the mirror box in MIRROR_VIEW (chosen while
 the tail existed; these cases have a constant exact radiance, so every view is exact).
 
-Budgets: a render's cost is its particle phase (one kernel per bounce, almost
+Budgets: a render's cost is mostly fixed (its particle phase is one kernel, almost
 independent of the number of paths), the error of the image mean comes from the
 eye-ray phase (the final gather of a furnace is nearly exact, and the particle
-phase's error of the image mean is small). So the checks use 16 runs, spp 64-256 at
-16 x 16 pixels, 2 gather rays and 10000 particle paths: every passing check detects a
-relative error of the mean below 1 % (typically 0.2-0.7 %).
+phase's error of the image mean is small). So the checks use 8-16 runs, spp 16-256 at
+8 x 8 or 16 x 16 pixels, 2 gather rays and 10000 particle paths: every passing check
+detects a relative error of the mean below 1 % (typically 0.2-0.7 %).
 """
 import functools
 
@@ -34,13 +36,27 @@ from mi_plugins.meshtable import MeshTable, NonMeshShapeError  # noqa: F401  (th
 import budget
 
 RES = 16
-SPP = 64
-#: large-M cases (not seen in FACE_VIEW)
-LARGE_SPP = 256
+#: runs of the image comparisons whose tolerance is far below the power rule's 2 % (0.1-0.5 %
+#: with 16 runs): 8 (the Student-t bound at z 4.5 is then 11.9 SE instead of 6.7); the
+#: harness's analytic.check keeps 16 runs at half the spp
+FEW_RUNS = 8
+#: camera samples per pixel of the analytic checks (their tolerances stay below 0.7 %, the
+#: suite's power rule asks for 2 %)
+SPP = 32
+#: the unbounded cases (not seen in FACE_VIEW; the sphere's renders also serve the structure
+#: checks of test_wrong_images_fail: slope SE ~0.001 against the 0.2 they must see)
+LARGE_SPP = 64
 RUNS = 16
-#: M = 29: truncation below 0.7^32 / 0.3 < 1e-4, stated as explicit bias (plus the case's own)
-LARGE_M = 29
-TRUNCATION_BIAS = 1e-4
+#: a gathered diffuse point's direct light is sampled there, and the patches average only
+#: the light of particle hits k >= 2. Where the radiance is constant that part is not (its
+#: complement, the direct light, varies over a triangle): with the modelled triangles as
+#: patches the image mean is off by -0.39 % (mirror box), +0.12 % (Bekaert Sierpinski),
+#: -0.16 % (Bekaert box, 32 runs, SE <= 0.03 %); with the default patch size -0.022 +- 0.011 %,
+#: -0.026 +- 0.028 %, -0.003 +- 0.016 %. Those cases use the default patches and this bound
+PATCH_BIAS = 5e-4
+#: ... and the neighbour sharing keeps the modelled triangles (its point is sharing one
+#: triangle's gather results): bound of its measured -0.16 %
+TRIANGLE_PATCH_BIAS = 3e-3
 
 
 #: camera (origin, target, up) and fov of the middle of the face z = -1 of the box
@@ -70,7 +86,7 @@ def face_view(case):
 def lighttrace(**kw):
     """Keller's settings; the analytic scenes' triangles are the patches (as modelled, like
     the report's cube: subdivide=false; test_subdivided_cube_stays_exact splits them)."""
-    d = {"type": "qmc_lighttrace", "samples": 10000, "max_depth": 6, "gather_samples": 2, "subdivide": False}
+    d = {"type": "qmc_lighttrace", "samples": 10000, "sequence_depth": 6, "gather_samples": 2, "subdivide": False}
     d.update(kw)
     return d
 
@@ -105,42 +121,46 @@ def test_direct_light_has_no_heavy_tail_at_emitting_edges():
 
 @pytest.mark.parametrize("sequence", ["sobol", "halton", "faure", "lcg", "independent"])
 def test_keller_cube_exact_truncated_value(sequence):
-    """M = 6: the image holds paths of up to M + 3 = 9 segments (Mitsuba max_depth 9)."""
+    """max_depth = 9 (Mitsuba's: paths of up to 9 segments) against the exact value at depth 9."""
     case = face_view(analytic.keller_cube(resolution=RES))
-    res = analytic.check(case, lighttrace(sequence=sequence), spp=SPP, runs=RUNS, max_depth=9)
+    res = analytic.check(case, lighttrace(sequence=sequence, max_depth=9), spp=SPP // 2, runs=RUNS, max_depth=9)
     assert res.passed, res
 
 
 #: case name -> view (None: the case's own view)
-LARGE_M_CASES = {"furnace_sierpinski": SIERPINSKI_VIEW, "bekaert_sierpinski": SIERPINSKI_VIEW,
+UNBOUNDED_CASES = {"furnace_sierpinski": SIERPINSKI_VIEW, "bekaert_sierpinski": SIERPINSKI_VIEW,
                  "diffuse_sphere_mesh": None, "sierpinski_diffuse_simulated": SIERPINSKI_VIEW}
+#: cases whose emission varies from patch to patch: the default patches (PATCH_BIAS)
+SUBDIVIDED_CASES = ("bekaert_sierpinski",)
 
 
-@pytest.mark.parametrize("case_name", list(LARGE_M_CASES))
-def test_cases_with_large_m(case_name):
-    """The Sierpinski cases in SIERPINSKI_VIEW; the sphere (no edges) in its own view."""
-    case, images = large_m_renders(case_name)
-    res = harness.compare(images, case.expected(-1), bias=TRUNCATION_BIAS + case.known_bias)
+@pytest.mark.parametrize("case_name", list(UNBOUNDED_CASES))
+def test_unbounded_cases(case_name):
+    """max_depth = -1 (the default): the Sierpinski cases in SIERPINSKI_VIEW; the sphere
+    (no edges) in its own view, against the untruncated exact values."""
+    case, images = unbounded_renders(case_name)
+    bias = case.known_bias + (PATCH_BIAS if case_name in SUBDIVIDED_CASES else 0.0)
+    res = harness.compare(images, case.expected(-1), bias=bias)
     assert res["passed"], res["failures"]
 
 
 @functools.lru_cache(maxsize=None)
-def large_m_renders(case_name):
-    """(case, RUNS renders with M = LARGE_M at LARGE_SPP), computed once per session:
+def unbounded_renders(case_name):
+    """(case, RUNS renders with max_depth = -1 at LARGE_SPP), computed once per session:
     test_wrong_images_fail reuses the sphere's."""
     case = analytic.cases()[case_name](resolution=RES)
-    if LARGE_M_CASES[case_name]:
-        case = in_view(case, LARGE_M_CASES[case_name])
-    images = render_runs(case.scene(lighttrace(max_depth=LARGE_M)), LARGE_SPP, seed=0)
+    if UNBOUNDED_CASES[case_name]:
+        case = in_view(case, UNBOUNDED_CASES[case_name])
+    images = render_runs(case.scene(lighttrace(subdivide=case_name in SUBDIVIDED_CASES)), LARGE_SPP, seed=0)
     images.setflags(write=False)
     return case, images
 
 
 def test_truncation_is_visible_when_checked_against_the_untruncated_value():
-    """M = 1 (paths of up to 4 segments) on a furnace with a = 0.7, Le = 0.3: the renders
-    pass against the depth-4 value 0.76 and fail the unbounded 1 by its 24 % deficit."""
+    """max_depth = 4 (paths of up to 4 segments) on a furnace with a = 0.7, Le = 0.3: the
+    renders pass against the depth-4 value 0.76 and fail the unbounded 1 by its 24 % deficit."""
     case = face_view(analytic.furnace(albedo=0.7, emission=0.3, geometry="box", resolution=RES))
-    images = render_runs(case.scene(lighttrace(max_depth=1)), SPP, seed=0)
+    images = render_runs(case.scene(lighttrace(max_depth=4)), SPP, seed=0, runs=FEW_RUNS)
     ok = harness.compare(images, case.expected(4))
     assert ok["passed"], ok["failures"]
     bad = harness.compare(images, case.expected(-1))
@@ -153,7 +173,7 @@ def test_per_triangle_radiance_of_the_cube():
     """Measured over 20 seeds: RMS error of the 12 triangle radiances 3e-4 .. 1.1e-3 on
     the side facing the inside (side 0: the normals point inward); the outside (side 1)
     of the one-sided walls holds nothing."""
-    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=100000, max_depth=29))
+    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=100000))
     integrator = scene.integrator()
     radiance, areas = integrator.preprocess(scene, seed=budget.seed(0))
     assert radiance.shape == (12, 2, 3) and np.isclose(areas.sum(), 24.0)
@@ -165,10 +185,12 @@ def test_per_triangle_radiance_of_the_cube():
 def test_subdivided_cube_stays_exact():
     """The default splits the cube's 12 triangles (edge 2.8) into 12 x 196 sub-triangles:
     each still estimates the exact 1/2, with the noise of 196 x fewer particles per patch
-    (400000 paths: RMS error 1.0e-2 measured, against 1.1e-3 for 12 patches at 100000),
-    and the area-weighted mean of all is 1/2 to 1e-9 (closed, constant albedo: every
-    particle's power is deposited, whatever patch it lands on)."""
-    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=400000, max_depth=29, subdivide=True))
+    (200000 paths: RMS error 1.45e-2 .. 1.49e-2 measured over 3 seeds, against 1.1e-3 for
+    12 patches at 100000),
+    and the area-weighted mean of all is 1/2 to 1e-6 (closed, constant albedo: every
+    particle's power is deposited, whatever patch it lands on; sequence_depth = 29 leaves
+    less than 0.5^30 of it to the Russian roulette of later bounces)."""
+    scene = analytic.keller_cube(resolution=8).scene(lighttrace(samples=200000, subdivide=True, sequence_depth=29))
     radiance, areas = scene.integrator().preprocess(scene, seed=budget.seed(0))
     assert radiance.shape == (12 * 196, 2, 3) and np.isclose(areas.sum(), 24.0)
     error = radiance[:, 0, 0] - 0.5
@@ -181,7 +203,7 @@ def test_adaptive_termination_stops_earlier_for_larger_epsilon():
     for eps in (1e-2, 1e-4):
         scene = case.scene(lighttrace(epsilon=eps, batch=1000, patience=2, max_samples=200000))
         integrator = scene.integrator()
-        integrator.preprocess(scene, seed=budget.seed(0))
+        integrator.preprocess(scene, seed=budget.seed(0), report=False)
         used[eps] = integrator.paths_used
         assert len(integrator.delta_e_history) >= 2
     assert used[1e-2] < used[1e-4] <= 200000
@@ -192,56 +214,52 @@ def test_max_samples_bounds_the_adaptive_loop():
     (a batch of 5000, then one cut to 2500), and the image still passes."""
     case = face_view(analytic.keller_cube(resolution=RES))
     scene = case.scene(lighttrace(epsilon=1e-12, batch=5000, max_samples=7500))
-    images = render_runs(scene, SPP, seed=4)
+    images = render_runs(scene, SPP, seed=4, runs=FEW_RUNS)
     integrator = scene.integrator()
     assert integrator.paths_used == 7500
     assert len(integrator.delta_e_history) == 1 and integrator.delta_e_history[0] > 1e-12
-    res = harness.compare(images, case.expected(9))
+    res = harness.compare(images, case.expected(-1))
     assert res["passed"], res["failures"]
 
 
 def test_scramble_false_is_deterministic_and_passes():
     """scramble=false: the particle phase uses the plain Sobol points, whatever the seed:
-    two preprocess() calls with different seeds give the same triangle radiance (exactly:
-    the deposits are summed in fixed point; scrambled seeds differ by ~3e-3). Its QMC
-    error is then shared by all runs; measured: RMS error of the 12 triangle radiances
-    3.2e-3 (max 5.7e-3) at 10000 paths, like the scrambled
-    1.9e-3 .. 4.2e-3; the check (whose runs differ in the eye-ray phase only) passes."""
+    two preprocess() calls with different seeds give the same deposits (exactly: they are
+    summed in fixed point, and the pseudo-random bounces beyond sequence_depth use a fixed
+    stream; scrambled seeds differ). Its QMC error is then shared by all runs; measured:
+    RMS error of the 12 triangle radiances 2.5e-3 at 10000 paths (3.2e-3 when the paths
+    stopped after M + 1 hits); the check (whose runs differ in the eye-ray phase only)
+    passes."""
     case = face_view(analytic.keller_cube(resolution=RES))
-    exact_triangle = 0.25 * (2 - 2.0 ** -7)          # Le * sum_{k <= M + 1} a^k, M = 6
+    exact_triangle = 0.5                             # Le / (1 - a)
     scene = case.scene(lighttrace(scramble=False))
     integrator = scene.integrator()
     first = integrator.preprocess(scene, seed=budget.seed(1))[0].copy()
-    second = integrator.preprocess(scene, seed=budget.seed(2))[0].copy()
-    assert np.array_equal(first, second), np.abs(first - second).max()
+    deposits = integrator.irradiance.copy()
+    integrator.preprocess(scene, seed=budget.seed(2), report=False)
+    assert np.array_equal(deposits, integrator.irradiance), np.abs(deposits - integrator.irradiance).max()
     qmc_error = np.sqrt(np.mean((first[:, 0] - exact_triangle) ** 2))
-    assert 1e-3 < qmc_error < 5e-3, qmc_error       # deterministic: 3.2e-3
+    assert 1e-3 < qmc_error < 5e-3, qmc_error       # deterministic: 2.5e-3
     scrambled = case.scene(lighttrace())
     other = scrambled.integrator()
-    a = other.preprocess(scrambled, seed=budget.seed(1))[0].copy()
-    b = other.preprocess(scrambled, seed=budget.seed(2))[0].copy()
+    a, b = (other.preprocess(scrambled, seed=budget.seed(k), report=False) and other.irradiance.copy() for k in (1, 2))
     assert np.abs(a - b).max() > 1e-4                # test of the test: scrambling depends on the seed
-    res = analytic.check(case, lighttrace(scramble=False), spp=SPP, runs=RUNS, max_depth=9, seed=2)
+    res = analytic.check(case, lighttrace(scramble=False), spp=SPP // 2, runs=RUNS, seed=2)
     assert res.passed, res
 
 
 # ------------------------------------------------------------------ neighbour sharing
 SHARE_SPP = 64
-#: M of the sharing renders: in the Bekaert box the power per hit decays like 0.43 at most
-#: (largest eigenvalue of the two-cell hit chain, red: albedos 0.2 / 0.7, form factors 0.4
-#: to the own cell and 0.6 to the other), so paths of up to M + 3 = 15 segments miss
-#: less than 0.43^15 / 0.57 = 5e-6 < TRUNCATION_BIAS
-SHARE_M = 12
 
 
 def share_renders(block, runs=RUNS):
-    """Bekaert box (SHARE_M, 1 gather ray): ``runs`` renders without and with
+    """Bekaert box (unbounded, 1 gather ray): ``runs`` renders without and with
     share_neighbors, run j of both with the same seed (common random numbers: the
     direct light, which dominates the error, is the same in both)."""
     case = face_view(analytic.bekaert("box", resolution=RES))
     images = {}
     for share in (False, True):
-        scene = case.scene(lighttrace(max_depth=SHARE_M, gather_samples=1, share_neighbors=share))
+        scene = case.scene(lighttrace(gather_samples=1, share_neighbors=share))
         images[share] = np.stack([np.array(mi.render(scene, spp=SHARE_SPP, seed=budget.block_seed(block, j)),
                                            dtype=np.float64) for j in range(runs)])
     return case, images[False], images[True]
@@ -260,18 +278,20 @@ def rmse_ratio_share_neighbors(block):
 
 
 def test_neighbour_sharing_passes_and_lowers_the_error():
-    """share_neighbors averages the gather result over the neighbouring pixels that see
-    the same triangle: both renders pass, and the per-pixel RMSE is lower with it (it
-    reduces only the gather part of the error, about 13 % of the MSE here with one gather ray;
-    the light sample's part, the same in both renders, stays)."""
+    """share_neighbors averages the gather samples' results over the neighbouring pixels
+    that see the same triangle: both renders pass, and the per-pixel RMSE is lower with it
+    (it reduces only the gather part of the error; the light sample's part, the same in
+    both renders, stays)."""
     case, plain, shared = share_renders(0)
     exact = case.expected(-1)
     for images in (plain, shared):
-        res = harness.compare(images, exact, bias=TRUNCATION_BIAS)
+        res = harness.compare(images, exact, bias=TRIANGLE_PATCH_BIAS)
         assert res["passed"], res["failures"]
-    # measured over 24 seed blocks: 1.056 .. 1.072 (median 1.065, log-SD 0.0044): sharing lowers the
-    # RMSE by ~6 % here; the bound asks for at least half of that
-    budget.ratio("qmc_lighttrace.rmse_ratio_share_neighbors", _rmse(plain, exact) / _rmse(shared, exact), 1.03, None)
+    # measured over 24 seed blocks: 1.458 .. 1.493 (median 1.475, log-SD 0.0063): sharing lowers the
+    # RMSE by a third here (the gather samples' part of the error dominates: where emitting surfaces
+    # also reflect, a sample's emission and reflected light vary against each other); the bound asks
+    # for most of that
+    budget.ratio("qmc_lighttrace.rmse_ratio_share_neighbors", _rmse(plain, exact) / _rmse(shared, exact), 1.4, None)
 
 
 # ------------------------------------------------------------------ wrong images
@@ -280,9 +300,9 @@ def test_wrong_images_fail():
     known bias + the truncation): the renders pass against the exact image and fail the
     structure test against the mirrored image and an image with a 25 % too high
     contrast (both with the right mean), by the slope the exact image predicts."""
-    case, images = large_m_renders("diffuse_sphere_mesh")
+    case, images = unbounded_renders("diffuse_sphere_mesh")
     exact = case.expected(-1)
-    bias = case.known_bias + TRUNCATION_BIAS
+    bias = case.known_bias
     ok = harness.compare(images, exact, bias=bias)
     assert ok["passed"], ok["failures"]
     structure = exact - exact.mean()
@@ -311,11 +331,6 @@ MIRROR_FACE = np.array([[-1, -1, -1], [-1, 1, -1], [-1, 1, 1], [-1, -1, 1]], dty
 #: is the mirror; no edge between two emitting faces is seen, directly (>= 0.47 away) or
 #: in the mirror (>= 0.28 away), so the light sample has no heavy tail (module docstring)
 MIRROR_VIEW = (([0.4, 0.4, 0.0], [-1.0, -1.0, 0.0], [0, 1, 0]), 30.0)
-#: M of the mirror-box renders: paths of up to M + 3 = 19 segments. Per hit the power
-#: decays like 0.574, the largest eigenvalue of the diffuse/mirror hit chain (a diffuse
-#: hit keeps a = 0.5 and reaches the mirror with form factor 0.2; a mirror hit keeps all
-#: and reaches a diffuse face): truncation ~ 0.574^19 / 0.426 = 6e-5 < TRUNCATION_BIAS
-MIRROR_M = 16
 
 
 def mirror_box(albedo=0.5, emission=0.5, resolution=RES):
@@ -391,8 +406,8 @@ def mirror_box_images(case, k=32):
 def mirror_renders(mirror_depth):
     """RUNS renders of mirror_box() with ``mirror_depth`` (computed once per session: the
     mirror_depth = 0 test reuses the mirror_depth = 1 renders as its test of the test)."""
-    scene = mirror_box().scene(lighttrace(max_depth=MIRROR_M, mirror_depth=mirror_depth))
-    images = render_runs(scene, (2 if mirror_depth else 1) * SPP, seed=12 + mirror_depth)
+    scene = mirror_box().scene(lighttrace(mirror_depth=mirror_depth, subdivide=True))
+    images = render_runs(scene, (2 if mirror_depth else 1) * SPP, seed=12 + mirror_depth, runs=FEW_RUNS)
     images.setflags(write=False)
     return images
 
@@ -417,9 +432,9 @@ def test_mirror_depth_follows_the_mirror_and_gather_rays_follow_it_too():
     images = mirror_renders(1)
     fraction, seen_ff, _ = mirror_box_images(case)
     exact = case.expected(-1)
-    ok = harness.compare(images, exact, bias=TRUNCATION_BIAS)
+    ok = harness.compare(images, exact, bias=PATCH_BIAS)
     assert ok["passed"], ok["failures"]
-    bad = harness.compare(images, exact - a * L * seen_ff, bias=TRUNCATION_BIAS)
+    bad = harness.compare(images, exact - a * L * seen_ff, bias=PATCH_BIAS)
     assert not bad["passed"] and bad["z"] > 20, (bad["z"], bad["failures"])
     assert 0.15 < a * L * float(seen_ff.mean()) < 0.20
     assert 0.45 < fraction.mean() < 0.55                     # the mirror is half of the view
@@ -437,10 +452,10 @@ def test_mirror_depth_zero_stops_eye_rays_at_the_mirror():
     fraction, _, direct_ff = mirror_box_images(case)
     exact = case.expected(-1)
     expected = exact * (1.0 - fraction) - a * L * direct_ff
-    res = harness.compare(images, expected, bias=TRUNCATION_BIAS)
+    res = harness.compare(images, expected, bias=PATCH_BIAS)
     assert res["passed"], res["failures"]
     close_t(res["mean"], float(np.mean(exact * (1.0 - fraction))) - a * L * float(direct_ff.mean()), res["se"],
-            res["runs"], slack=TRUNCATION_BIAS, what="image mean with black mirror pixels")
+            res["runs"], slack=PATCH_BIAS, what="image mean with black mirror pixels")
     full = np.pad(fraction[..., 0] == 1.0, 1)
     # pixels whose footprint and 4 neighbours' footprints see only the mirror
     only_mirror = full[1:-1, 1:-1] & full[:-2, 1:-1] & full[2:, 1:-1] & full[1:-1, :-2] & full[1:-1, 2:]
@@ -494,11 +509,11 @@ LIGHTS = {
 }
 
 
-def ordinary(integrator, camera, fov=40.0, **objects):
-    """A Mitsuba scene of ``objects`` (shape and emitter dicts) seen by a RES x RES camera."""
+def ordinary(integrator, camera, fov=40.0, res=RES, **objects):
+    """A Mitsuba scene of ``objects`` (shape and emitter dicts) seen by a res x res camera."""
     origin, target, up = camera
     sensor = {"type": "perspective", "fov": fov, "to_world": T().look_at(origin=origin, target=target, up=up),
-              "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"}}}
+              "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}}
     return mi.load_dict(dict(type="scene", integrator=integrator, sensor=sensor, **objects), optimize=False)
 
 
@@ -509,13 +524,14 @@ def sheet(z, half, bsdf):
     return dict(geometry.mesh_shape(mesh, "sheet"), bsdf=bsdf)
 
 
-def against_path(make, spp, seed, runs=RUNS, bias=0.0, path_spp=None):
-    """Renders of ``make(integrator)`` by qmc_lighttrace (M = LARGE_M) and Mitsuba's path
-    (independent seeds); asserts |qmc mean - path mean| <= t bound x combined SE + bias +
-    float rounding. Returns the statistics and both image stacks."""
+def against_path(make, spp, seed, runs=RUNS, bias=0.0, path_spp=None, max_depth=-1, reference="path", **params):
+    """Renders of ``make(integrator)`` by qmc_lighttrace (``params``) and Mitsuba's path (or
+    ``reference``) at ``max_depth`` (independent seeds); asserts |qmc mean - path mean| <=
+    t bound x combined SE + bias + float rounding. Returns the statistics and both image
+    stacks."""
     out = {}
-    for name, integrator, s in (("path", {"type": "path"}, 2 * seed),
-                                ("qmc", lighttrace(max_depth=LARGE_M), 2 * seed + 1)):
+    for name, integrator, s in (("path", {"type": reference, "max_depth": max_depth}, 2 * seed),
+                                ("qmc", lighttrace(max_depth=max_depth, **params), 2 * seed + 1)):
         images = render_runs(make(integrator), (path_spp or spp) if name == "path" else spp, s, runs)
         means = images.reshape(runs, -1).mean(axis=1)
         out[name], out[name + "_se"], out[name + "_images"] = means.mean(), means.std(ddof=1) / np.sqrt(runs), images
@@ -628,30 +644,33 @@ def irradiance_estimate(scene, table, rows, samples=1 << 18, seed=0):
 @pytest.mark.parametrize("light", ["area"] + list(LIGHTS))
 def test_particles_carry_the_power_of_every_emitter_type(light):
     """A lone `twosided` sheet (front albedo 0.8, back 0.3) under each kind of light: the
-    reflected radiance the particles leave on each side of its two triangles, over 16
-    seeds of 50000 paths, matches albedo / pi x the irradiance from Mitsuba's own emitter
-    sampling as `path` uses it (2^18 points per triangle and side). Measured |z| <= 1.8;
-    each of the 12 values is checked to 0.15-3.4 % (envmap's dim back side). Before the
-    fix a rotated envmap gave 1.67 x too much (Mitsuba 3.9's envmap sample_ray) and the
-    sides were mixed (constant sky: 1.10 on both instead of 0.80 and 0.30)."""
+    irradiance the particles leave on each side of its two triangles at their first hit
+    (layer 0; max_depth = 3 stops them there), over 16 seeds of 25000 paths, matches the
+    irradiance from Mitsuba's own emitter sampling as `path` uses it (2^18 points per
+    triangle and side); the reported reflected radiance is albedo / pi x it. Measured
+    |z| <= 1.8 at 50000 paths; each of the 12 values is checked to 0.2-5 % (envmap's dim
+    back side).
+    Before the fix a rotated envmap gave 1.67 x too much (Mitsuba 3.9's envmap
+    sample_ray) and the sides were mixed (constant sky: 1.10 on both instead of 0.80 and
+    0.30)."""
     objects = {"light": lamp(0.8, 5.0) if light == "area" else LIGHTS[light]()}
-    scene = ordinary(lighttrace(samples=50000, max_depth=0), ABOVE,
+    scene = ordinary(lighttrace(samples=25000, max_depth=3), ABOVE,
                      sheet=sheet(0.0, 0.5, {"type": "twosided", "front": diffuse(SIDE_ALBEDO[0]),
                                             "back": diffuse(SIDE_ALBEDO[1])}), **objects)
     integrator = scene.integrator()
     runs = []
     for j in range(RUNS):
-        integrator.preprocess(scene, seed=budget.seed(40 + j))
-        runs.append(integrator.reflected_radiance.copy())
+        integrator.preprocess(scene, seed=budget.seed(40 + j), report=j == RUNS - 1)
+        runs.append(integrator.irradiance[0].copy())
     rows = integrator.patch_shapes == "sheet"
-    runs = np.stack(runs)[:, rows]
-    irradiance, irradiance_se = irradiance_estimate(scene, MeshTable(scene, "test", subdivide=False), rows, seed=40)
     albedo = np.array(SIDE_ALBEDO)[None, :, None]
-    expected, expected_se = albedo * irradiance / np.pi, albedo * irradiance_se / np.pi
+    np.testing.assert_allclose(integrator.reflected_radiance[rows], albedo / np.pi * runs[-1][rows], rtol=1e-6)
+    runs = np.stack(runs)[:, rows]
+    expected, expected_se = irradiance_estimate(scene, MeshTable(scene, "test", subdivide=False), rows, seed=40)
     se = np.hypot(runs.std(axis=0, ddof=1) / np.sqrt(RUNS), expected_se)
     assert expected[:, 0].min() > 0.05
     close_t(runs.mean(axis=0), expected, se, RUNS, slack=harness.FLOAT_TOLERANCE * expected,
-            what="particle radiance per triangle side")
+            what="particle irradiance per triangle side")
 
 
 @pytest.mark.parametrize("params", [{}, {"epsilon": 1e-3, "batch": 500, "max_samples": 2000}])
@@ -664,6 +683,186 @@ def test_a_scene_without_emitters_renders_black(params):
     assert all(np.all(image == 0) for image in images)
 
 
+def test_a_black_light_renders_black():
+    """A lamp of radiance 0: the particles carry no power and deposit nothing; the image
+    is black (no NaN), like path's."""
+    scene = ordinary(lighttrace(), INSIDE, box={"type": "cube", "flip_normals": True, "bsdf": diffuse()},
+                     lamp=dict(lamp(0.5), emitter={"type": "area", "radiance": rgb_dict(0.0)}))
+    image = np.array(mi.render(scene, spp=2, seed=budget.seed(51)))
+    assert np.all(image == 0) and np.all(scene.integrator().irradiance == 0)
+
+
+# ------------------------------------------------------------------ every BSDF, depth, emission, alpha
+# The measured defects of the radiosity-only version, each against Mitsuba's `path` on a
+# small scene (8 x 8 pixels; before -> after, relative bias of the image mean +- SE):
+# deposits on every surface and gather rays reading them missed the glossy reflection of
+# indirect light and treated bump maps, masks and blends as their diffuse part.
+#: z up: a camera inside the cube [-1, 1]^3 looking down at a slab on its floor
+ROOM_VIEW = ([0.0, -0.95, 0.2], [0.0, 0.3, -0.6], [0, 0, 1])
+BUMPS = {"type": "bitmap", "bitmap": mi.Bitmap(np.random.default_rng(1).random((16, 16, 1)).astype(np.float32)),
+         "raw": True}
+#: the BSDFs of the checks: (dict, scene: 'box' (every wall of it) or 'slab' (a slab of it in a
+#: diffuse room), qmc_lighttrace's spp, runs: 8 except plastic, whose defect was the smallest seen)
+NON_DIFFUSE = {
+    "phong": ({"type": "phong", "diffuse_reflectance": rgb_dict(0.5), "specular_reflectance": rgb_dict(0.3),
+               "exponent": 10.0}, "box", 32, FEW_RUNS),
+    "phong_n0": ({"type": "phong", "diffuse_reflectance": rgb_dict(0.4), "specular_reflectance": rgb_dict(0.4),
+                  "exponent": 0.0}, "box", 32, FEW_RUNS),
+    "plastic": ({"type": "plastic", "diffuse_reflectance": rgb_dict(0.5)}, "box", 64, RUNS),
+    "roughplastic": ({"type": "roughplastic", "diffuse_reflectance": rgb_dict(0.5), "alpha": 0.2}, "box", 32,
+                     FEW_RUNS),
+    "roughconductor": ({"type": "roughconductor", "material": "Au", "alpha": 0.3}, "slab", 32, FEW_RUNS),
+    "bumpmap": ({"type": "bumpmap", "arg": BUMPS, "scale": 0.5, "bsdf": diffuse(0.6)}, "box", 32, FEW_RUNS),
+    "mask": ({"type": "mask", "opacity": 0.5, "bsdf": diffuse(0.6)}, "box", 32, FEW_RUNS),   # against volpath
+    "blendbsdf": ({"type": "blendbsdf", "weight": 0.4, "bsdf_0": diffuse(0.6),
+                   "bsdf_1": {"type": "conductor", "material": "Al"}}, "box", 32, FEW_RUNS),
+}
+
+
+def room(bsdf, where):
+    """The closed room (albedo 0.5, a box lamp under the ceiling) with every wall of
+    ``bsdf`` (``where`` = 'box') or a slab of it on the floor ('slab')."""
+    walls = bsdf if where == "box" else diffuse(0.5)
+    objects = dict(box={"type": "cube", "flip_normals": True, "bsdf": walls}, lamp=lamp(0.85))
+    if where == "slab":
+        objects["slab"] = {"type": "cube", "to_world": T().translate([0, 0.2, -0.75]).scale([0.6, 0.5, 0.25]),
+                           "bsdf": bsdf}
+    return lambda integrator: ordinary(integrator, ROOM_VIEW, fov=60.0, res=8, **objects)
+
+
+@pytest.mark.parametrize("name", list(NON_DIFFUSE))
+def test_non_diffuse_bsdfs_match_path(name):
+    """Walls or a slab of each non-diffuse BSDF (8-16 runs, qmc 32-64 spp, path 256 spp):
+    the image means agree (t bound 6.7-11.9 SE; measured after, 16 runs each side: |z|
+    <= 1.4). Before (the same scenes, 16 runs): phong -22.2 % (z -49), phong n = 0 -22.1 %
+    (z -71), plastic -7.6 % (z -18), bumpmap +29.6 % (z +30), mask +34 % against volpath,
+    blendbsdf -60.0 % (z -107); roughplastic (+0.04 %, z +0.1) and roughconductor (slab
+    +2.6 %, z +3.8; walls -1.7 %, z -3.1) were within the t bound: their particle defect
+    is checked below. The mask walls are compared with
+    Mitsuba's volpath: Mitsuba 3.9.1's path renders a `mask` surface's light-sampled direct
+    light too dark, by its opacity (a mask 0.5 quad under a point light at max_depth 2:
+    path 0.0227, volpath and ptracer 0.0455; in this room path 0.074, volpath and ptracer
+    0.109, qmc_lighttrace 0.109)."""
+    bsdf, where, spp, runs = NON_DIFFUSE[name]
+    against_path(room(bsdf, where), spp, seed=60 + list(NON_DIFFUSE).index(name), runs=runs, path_spp=256,
+                 subdivide=True, reference="volpath" if name == "mask" else "path")
+
+
+def lobe_scene(bsdf, integrator):
+    """A lamp (a square facing up) under a ceiling of ``bsdf``, a diffuse floor below that
+    the lamp does not light, itself an irradiance meter: the floor's light is the ceiling's."""
+    meter = {"type": "irradiancemeter", "sampler": {"type": "independent"},
+             "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"}}}
+    return mi.load_dict({
+        "type": "scene", "integrator": integrator,
+        "lamp": {"type": "rectangle", "to_world": T().translate([0, 0, 0.3]).scale(0.2), "bsdf": diffuse(0.0),
+                 "emitter": {"type": "area", "radiance": rgb_dict(10.0)}},
+        "ceiling": {"type": "rectangle", "to_world": T().translate([0, 0, 1.0]).rotate([1, 0, 0], 180).scale(1.5),
+                    "bsdf": bsdf},
+        "floor": {"type": "rectangle", "bsdf": diffuse(0.5), "sensor": meter}})
+
+
+@pytest.mark.parametrize("name", ["phong", "roughplastic"])
+def test_particles_choose_lobe_and_direction_with_independent_numbers(name):
+    """The particles' irradiance on the floor of lobe_scene at their second hit (after the
+    ceiling's BSDF: layer 1 with max_depth = 4) against `path` at max_depth 2 with the
+    floor as an irradiance meter (16 runs each): agree (measured at 5 x the particles and
+    8 x the path samples: -0.00 % z -0.0 (phong), -0.04 % z -0.3 (roughplastic), SE
+    0.2 %; SE here ~0.4 %). With one number for the lobe choice and the
+    direction's first coordinate: +6.4 % (z +35) and +13.0 % (z +76)."""
+    bsdf = NON_DIFFUSE[name][0]
+    path = lobe_scene(bsdf, {"type": "path", "max_depth": 2})
+    reference = np.array([np.array(mi.render(path, spp=1 << 13, seed=budget.seed(70 + j))).mean() for j in range(RUNS)])
+    scene = lobe_scene(bsdf, lighttrace(samples=10000, max_depth=4))
+    integrator, values = scene.integrator(), []
+    for j in range(RUNS):
+        integrator.preprocess(scene, seed=budget.seed(90 + j), report=False)
+        floor = integrator.patch_shapes == "floor"
+        areas = integrator.triangle_areas[floor]
+        values.append(float(np.sum(integrator.irradiance[1][floor, 0].mean(axis=1) * areas) / areas.sum()))
+    values = np.array(values)
+    se = np.hypot(values.std(ddof=1), reference.std(ddof=1)) / np.sqrt(RUNS)
+    assert reference.mean() > 0.1
+    close_t(values.mean(), reference.mean(), se, RUNS, what="floor irradiance via the ceiling")
+
+
+def coverage_scene(key, res=8):
+    """A coverage-matrix row's scene (``mi_plugins.coverage``) with an integrator slot."""
+    from mi_plugins.coverage import matrix
+    build = matrix.rows()[key].build
+    return lambda integrator: mi.load_dict(dict(build(res), integrator=integrator))
+
+
+@pytest.mark.parametrize("key, spp, path_spp, runs", [("case:light_facing_ceiling", 64, 1024, RUNS),
+                                                      ("case:negative_emission", 32, 256, FEW_RUNS),
+                                                      ("package:simulated_area", 32, 256, FEW_RUNS)])
+def test_emission_cases_match_path(key, spp, path_spp, runs):
+    """An area light facing a ceiling 1 cm above it; an area light of radiance -2; the
+    package's simulated_area with the uniform estimator on a wall (negative estimates):
+    the image means agree with `path` and every pixel is finite. Before: +230 % (z +18:
+    the patches averaged the ceiling's direct light, steep above the light, where the
+    floor reads it; +26 % with patches of 0.05, within the noise at 0.02), and the
+    unsigned fixed-point sums wrapped negative deposits: image means of 3e5 and 4e3."""
+    res = against_path(coverage_scene(key), spp, seed=80 + len(key), runs=runs, path_spp=path_spp, subdivide=True)
+    assert np.all(np.isfinite(res["qmc_images"]))
+
+
+def test_alpha_is_the_coverage_of_the_eye_rays():
+    """An rgba film on the open stage, the sky empty: the alpha channel is the fraction of
+    each pixel's eye rays that meet a surface, as `path` makes it (was 1 everywhere), and
+    the colour channels agree too."""
+    make = coverage_scene("format:rgba")
+    images = {}
+    for name, integrator, seed in (("path", {"type": "path"}, 84), ("qmc", lighttrace(subdivide=True), 85)):
+        images[name] = render_runs(make(integrator), 16, seed, runs=8)
+    alpha = {name: im[..., 3].reshape(8, -1).mean(axis=1) for name, im in images.items()}
+    se = np.hypot(alpha["path"].std(ddof=1), alpha["qmc"].std(ddof=1)) / np.sqrt(8)
+    assert 0.1 < alpha["path"].mean() < 0.9
+    close_t(alpha["qmc"].mean(), alpha["path"].mean(), se, 8, slack=1e-6, what="alpha")
+    assert np.all(images["qmc"][..., 3][:, images["path"][..., 3].max(axis=0) == 0] == 0)
+
+
+#: the depth checks' room: a mirror slab and a glossy slab in the diffuse room, a point
+#: light and the lamp: camera paths reach the diffuse points after mirror chains and glossy
+#: continuations of varying length
+def depth_room(integrator):
+    return ordinary(integrator, ROOM_VIEW, fov=60.0, res=8, box={"type": "cube", "flip_normals": True,
+                                                                "bsdf": diffuse(0.6)},
+                    lamp=lamp(0.85), point={"type": "point", "position": [0.5, -0.5, 0.4], "intensity": rgb_dict(1.5)},
+                    mirror={"type": "cube", "to_world": T().translate([-0.5, 0.3, -0.8]).scale([0.3, 0.5, 0.2]),
+                            "bsdf": {"type": "conductor", "material": "none"}},
+                    glossy={"type": "cube", "to_world": T().translate([0.45, 0.3, -0.8]).scale([0.3, 0.5, 0.2]),
+                            "bsdf": NON_DIFFUSE["roughconductor"][0]})
+
+
+@pytest.mark.parametrize("depth", [2, 3, 5])
+def test_every_max_depth_matches_path(depth):
+    """max_depth is Mitsuba's: at every depth the image mean agrees with `path` at the same
+    depth, delta light included: 2 (direct light only), 3 (no stored light read), 5 (the
+    stored light read at a diffuse point holds the particle hits that fit in what the
+    camera path has left: k <= 3, less after mirror chains and glossy continuations)."""
+    res = against_path(depth_room, 32, seed=90 + depth, runs=FEW_RUNS, path_spp=256, max_depth=depth, subdivide=True)
+    assert res["path"] > 0.02
+
+
+def test_work_beyond_the_limits_is_refused():
+    """A max_depth whose deposit layers x patches exceed the documented limit, and eye
+    rays x gather samples beyond 2^32 lanes, are refused before any work, by the
+    parameter reader's message (the paths' 2^32 limit: test_bad_parameters)."""
+    for params, spp, message in (
+            ({"max_depth": 10 ** 6}, 1, "qmc_lighttrace: parameter max_depth=1000000 is invalid; valid range: -1 "
+             "(unbounded: 2 layers) or a depth whose 999998 deposit layers x 24 patches fit: at most 16777216 "
+             "patch layers"),
+            ({"gather_samples": 1024}, 1 << 24, "qmc_lighttrace: parameter gather_samples=1024 is invalid; valid "
+             "range: a count whose 4294967296 eye rays x gather samples")):
+        scene = ordinary(lighttrace(**params), INSIDE, box={"type": "cube", "flip_normals": True, "bsdf": diffuse()},
+                         light=lamp(0.5))
+        with pytest.raises(Exception) as info:
+            mi.render(scene, spp=spp)
+        text = str(info.value) + str(info.value.__cause__ or "")
+        assert message in text, text
+
+
 # ------------------------------------------------------------------ behaviour
 def test_same_seed_same_image():
     """The deposits are summed as 64-bit fixed-point integers (integer atomics do not
@@ -673,15 +872,21 @@ def test_same_seed_same_image():
     a, b, c = (np.array(mi.render(scene, spp=2, seed=budget.seed(s))) for s in (3, 3, 4))
     assert np.array_equal(a, b) and not np.allclose(a, c, rtol=1e-3)
     integrator = scene.integrator()
-    first, second = (integrator.preprocess(scene, seed=budget.seed(3))[0].copy() for _ in range(2))
+    first, second = (integrator.preprocess(scene, seed=budget.seed(3), report=False) and integrator.irradiance.copy()
+                     for _ in range(2))
     assert np.array_equal(first, second)
 
 
 @pytest.mark.parametrize("params, message", [
     ({"epsilon": 0.0}, "epsilon=0.0 is invalid; valid range: a finite number > 0"),
-    ({"samples": 0}, "samples=0 is invalid; valid range: an integer >= 1"),
+    ({"samples": 0}, r"samples=0 is invalid; valid range: an integer in 1 \.\. 4294967296 \(the particle index"),
+    ({"samples": 2 ** 40}, r"samples=1099511627776 is invalid; valid range: an integer in 1 \.\. 4294967296"),
+    ({"max_samples": 2 ** 33}, r"max_samples=8589934592 is invalid; valid range: an integer in 1 \.\. 4294967296"),
+    ({"batch": 2 ** 33}, r"batch=8589934592 is invalid; valid range: an integer in 1 \.\. 4294967296"),
+    ({"max_depth": -2}, "max_depth=-2 is invalid; valid range: an integer >= -1"),
+    ({"gather_samples": 2000}, r"gather_samples=2000 is invalid; valid range: an integer in 1 \.\. 1024"),
     ({"sequence": "niederreiter"}, "sequence='niederreiter' is invalid; valid range: one of 'sobol'"),
-    ({"sequence": "halton", "max_depth": 200}, "max_depth=200 needs 404 dimensions"),
+    ({"sequence": "halton", "sequence_depth": 200}, "sequence_depth=200 needs 604 dimensions"),
     ({"patch_size": 0.0}, "patch_size=0.0 is invalid; valid range: a finite number > 0"),
     ({"subdivide": 1}, "subdivide=1 is invalid; valid range: a boolean"),
 ])
@@ -699,4 +904,6 @@ def test_shapes_without_patches_are_refused():
     with pytest.raises(Exception) as info:
         mi.render(mi.load_dict(d, optimize=False), spp=1)
     text = str(info.value) + str(info.value.__cause__ or "")
-    assert "qmc_lighttrace: shape 'inst' (Instance) is neither a triangle mesh" in text, text
+    assert ("qmc_lighttrace: the shape 'inst' (plugin 'instance') is not supported: qmc_lighttrace stores light per "
+            "patch, and only triangle meshes and Mitsuba's cylinder, disk, rectangle, sphere are divided into patches; "
+            "convert the shape to a triangle mesh") in text, text

@@ -23,9 +23,6 @@ class Bias:
 
 
 # ------------------------------------------------------------------ documented reasons
-RADIOSITY = ("radiosity setting: qmc_lighttrace stores one diffuse radiance per triangle and gathers with "
-             "cosine rays, so non-diffuse surfaces other than ideal mirrors and glass are outside its method "
-             "(README, qmc_lighttrace)")
 BUNDLE_DELTA = ("transport through delta (mirror/glass) surfaces cannot be captured by random global directions; "
                 "ray_bundle says so with a RuntimeWarning naming the shapes (README, ray_bundle)")
 
@@ -50,9 +47,8 @@ class IntegratorSpec:
     {scene: {parameter: value}} merged into ``params``; ``scene_spp``: {scene: spp};
     ``scene_runs``: {scene: runs}; ``not_applicable``: {scene: reason}; ``refused``: {scene: Refused(pattern, reason)};
     ``bias``: {scene: Bias(mean, blocks, reason)}, relative bounds (to the reference's
-    value) of a bias by design;
-    ``depth_offset``: the reference is ``path`` at max_depth = params['max_depth'] +
-    depth_offset (None: the untruncated path).
+    value) of a bias by design. The reference is ``path`` at the integrator's
+    ``max_depth`` (Mitsuba's meaning in every package integrator; -1 when not given).
     """
     name: str
     params: dict
@@ -64,12 +60,9 @@ class IntegratorSpec:
     not_applicable: dict = field(default_factory=dict)
     refused: dict = field(default_factory=dict)
     bias: dict = field(default_factory=dict)
-    depth_offset: int = None
 
     def reference_depth(self, params):
-        if self.depth_offset is None:
-            return -1
-        return int(params["max_depth"]) + self.depth_offset
+        return int(params.get("max_depth", -1))
 
 
 #: finite elements (ray_bundle, qmc_lighttrace): the reflected radiance that gather rays read
@@ -112,8 +105,7 @@ RAY_BUNDLE = IntegratorSpec(
                                       "patch_size": 0.08}})
 
 QMC_LIGHTTRACE = IntegratorSpec(
-    "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 20000, "max_depth": 29, "gather_samples": 4}, spp=128,
-    depth_offset=3, not_applicable={"glossy": NotApplicable(RADIOSITY)},
+    "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 20000, "gather_samples": 4}, spp=128,
     bias={name: PATCHES for name in INTERREFLECTING},
     # the light seen through the mirror, the caustic of mirror_lit: more camera samples (and runs,
     # which are cheap here, to match mirror_lit's noisy reference)

@@ -53,7 +53,26 @@ STOCHASTIC_RAY = Spec("stochastic_ray", {"type": "stochastic_ray", "iterations":
                           r"to it")))
 RAY_BUNDLE = Spec("ray_bundle", {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12,
                                  "burn_in": 6}, spp=1, scale_spp=False)
-QMC_LIGHTTRACE = Spec("qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 20000}, spp=64)
+#: what qmc_lighttrace refuses: media and being wrapped by 'aov' / 'moment' (every package
+#: integrator), shapes it cannot divide into patches, an emitter that only a light path can reach
+MEDIA_ROWS = ("medium:homogeneous", "medium:heterogeneous", "phase:isotropic", "phase:hg", "phase:rayleigh",
+              "phase:sggx", "phase:tabphase", "phase:blendphase", "volume:gridvolume", "volume:constvolume",
+              "case:camera_in_medium")
+MEDIUM_REFUSAL = r"qmc_lighttrace: the participating medium .* is not supported"
+WRAPPED = r"qmc_lighttrace: being wrapped by an integrator that calls it once per camera ray .* is not supported"
+NO_PATCHES = r"qmc_lighttrace: the shape 'subject' \(plugin '%s'\) is not supported: .*divided into patches"
+QMC_LIGHTTRACE = Spec(
+    "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 10000}, spp=64,
+    refused=dict({row: MEDIUM_REFUSAL for row in MEDIA_ROWS},
+                 **{"integrator:" + name: WRAPPED for name in ("aov", "moment")},
+                 **{"shape:" + name: NO_PATCHES % plugin for name, plugin in (
+                     ("instance", "instance"), ("shapegroup", "instance"), ("ellipsoids", "ellipsoids"),
+                     ("ellipsoidsmesh", "ellipsoidsmesh"), ("bsplinecurve", "bsplinecurve"),
+                     ("linearcurve", "linearcurve"), ("sdfgrid", "sdfgrid"))},
+                 **{"emitter:directionalarea": r"qmc_lighttrace: the emitter 'directionalarea' of shape 'light' is "
+                                              r"not supported: it emits in one direction only"}),
+    na={"texture:blackbody": "Mitsuba 3.9.1 refuses the blackbody spectrum in RGB variants ('Not implemented for "
+                             "non-spectral modes'), its own path included: there is no reference"})
 
 INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE)}
 

@@ -1,0 +1,204 @@
+"""The camera side of ``qmc_lighttrace``: eye rays, the visible point, final gathering.
+
+An eye ray follows purely specular surfaces (:func:`camera_chain`) to the first
+surface x with a smooth lobe, the *visible point*. There: one light sample and
+``gather_samples`` (SR) samples of x's BSDF (cosine rays on diffuse surfaces), combined
+by multiple importance sampling (power heuristic, the light sample against SR BSDF
+samples). Each gather sample continues (:meth:`CameraPaths.continuation`):
+
+- at its hit y, the emission seen, MIS-weighted against the previous vertex's light
+  sample (weight 1 after a delta or null lobe);
+- y purely diffuse (``qmc_surfaces``): y's direct light (a light sample and a BSDF
+  sample, MIS) plus the stored light of particles at their hit k >= 2, read from the
+  table the path's remaining depth allows (``qmc_store.Layers``); the path ends;
+- y non-diffuse (glossy, delta, null, mixed lobes): a light sample (MIS) and a BSDF
+  sample that continues the path, Russian roulette after ``RR_DEPTH`` segments.
+
+Every vertex counts its segments as Mitsuba's ``path`` does (``max_depth`` D: emission
+at segment <= D, a light sample or a continuation only below D), so the image agrees
+with ``path`` at every depth.
+"""
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins import seeds
+from mi_plugins.integrators.camera import RR_DEPTH as CHAIN_RR_DEPTH, SpecularChain
+from mi_plugins.integrators.qmc_particles import patch_side
+from mi_plugins.integrators.qmc_surfaces import reflectance_toward
+
+#: camera-side continuations play Russian roulette from this many segments on
+#: (survival min(max throughput, 0.95)), as Mitsuba's path does
+RR_DEPTH = 5
+#: the depth limit standing for "unbounded"
+UNBOUNDED = 1 << 30
+
+
+def mis(pdf_a, pdf_b):
+    """Power heuristic a^2 / (a^2 + b^2); 0 where not a number (an infinite light pdf,
+    see ``mi_plugins.sampling``)."""
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    w = a2 / (a2 + b2)
+    return dr.select((a2 > 0) & dr.isfinite(w), w, 0.0)
+
+
+def light_sample(scene, si, bsdf, sample, active, bsdf_samples=1.0):
+    """One visibility-tested emitter sample reflected at ``si`` toward si.wi, MIS-weighted
+    against ``bsdf_samples`` BSDF samples (delta lights: weight 1)."""
+    ds, em_weight = scene.sample_emitter_direction(si, sample, True, active)
+    ok = active & (ds.pdf > 0)
+    f, pdf = bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), ok)
+    w = dr.select(ds.delta, 1.0, mis(ds.pdf, bsdf_samples * pdf))
+    return dr.select(ok, mi.Color3f(f) * mi.Color3f(em_weight) * w, 0.0)
+
+
+class CameraPaths:
+    """Camera paths of one render: ``tables`` (Color3f, read table t of patch side ps at
+    t x 2K + ps), ``layers`` (``qmc_store.Layers``), ``max_depth`` (-1: unbounded),
+    ``mirror_depth`` (-1: unbounded; delta bounces followed by the eye ray, and by each
+    gather continuation)."""
+
+    def __init__(self, scene, table, surfaces, layers, tables, max_depth, mirror_depth, hide_emitters):
+        self.scene, self.table, self.surfaces, self.layers, self.tables = scene, table, surfaces, layers, tables
+        self.depth = UNBOUNDED if max_depth < 0 else int(max_depth)
+        self.max_depth, self.mirror_depth, self.hide_emitters = int(max_depth), int(mirror_depth), hide_emitters
+
+    def visible_points(self, cam, seed):
+        """The eye rays of camera pass ``cam``: (chain, si at the visible point, its BSDF,
+        segments used to reach it (UInt32), active)."""
+        scene = self.scene
+        rng = seeds.pcg(cam.count, seed, "camera_path")
+        chain = camera_chain(scene, cam.ray, rng, self.max_depth, self.mirror_depth, self.hide_emitters)
+        si = scene.ray_intersect(chain.ray, chain.reached)
+        used = chain.depth + 1
+        active = chain.reached & si.is_valid() & (used < self.depth)
+        return chain, si, si.bsdf(chain.ray), used, active
+
+    def estimate(self, cam, seed, gather_samples):
+        """(chain, si, light, gathered) at the visible points: the light sample's share of
+        the direct light, and the average of the gather samples (the rest of the direct
+        light, seen at their first hit, and everything beyond; one sum, since the two parts
+        of a sample are strongly anti-correlated where emitting surfaces also reflect).
+        The SR gather samples of an eye ray are SR consecutive lanes of one loop."""
+        chain, si, bsdf, used, active = self.visible_points(cam, seed)
+        sr, n = int(gather_samples), cam.count
+        light = light_sample(self.scene, si, bsdf, cam.sampler.next_2d(active), active, float(sr))
+        # the gather samples' numbers from the camera sampler, lane i * SR + j for sample j of eye lane i
+        numbers = [dr.zeros(mi.Float, n * sr) for _ in range(3)]
+        slots = dr.arange(mi.UInt32, n) * sr
+        for j in range(sr):        # SR draws of the sampler (a small constant)
+            u1, u2 = cam.sampler.next_1d(active), cam.sampler.next_2d(active)
+            for target, value in zip(numbers, (u1, u2.x, u2.y)):
+                dr.scatter(target, value, slots + j)
+        cam.sampler.schedule_state()
+        dr.eval(chain.emission, chain.throughput, si, bsdf, used, active, light, numbers)
+        eye = dr.arange(mi.UInt32, n * sr) // sr
+        at, go = dr.gather(mi.SurfaceInteraction3f, si, eye), dr.gather(mi.Bool, active, eye)
+        vertex = dr.gather(mi.BSDFPtr, bsdf, eye, go)
+        bs, weight = vertex.sample(mi.BSDFContext(), at, numbers[0], mi.Point2f(numbers[1], numbers[2]), go)
+        go &= (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
+        rng = seeds.pcg(n * sr, seed, "camera_path", 1)
+        result = self.continuation(at, bs, mi.Color3f(weight), dr.gather(mi.UInt32, used, eye), go, rng, sr)
+        dr.eval(result)    # one kernel (block_sum of each channel alone would launch the loop three times)
+        gathered = mi.Color3f(*(dr.block_sum(result[c], sr) / sr for c in range(3)))
+        return chain, si, light, gathered
+
+    def continuation(self, si, bs, weight, used, active, rng, sr=1):
+        """The radiance a BSDF sample ``bs`` (weight ``weight``) of vertex ``si`` brings
+        back, the vertex having used ``used`` segments; the sample's pdf counts ``sr``
+        times in the MIS weight of the emission it reaches (the vertex's light sample
+        was weighted against sr BSDF samples)."""
+        scene, table, surfaces, layers, tables = self.scene, self.table, self.surfaces, self.layers, self.tables
+        depth = mi.UInt32(self.depth)
+        mirrors = mi.UInt32(self.mirror_depth if self.mirror_depth >= 0 else UNBOUNDED)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        n = dr.width(active)
+        active = mi.Bool(active) & (dr.select(delta, 1, 0) <= mirrors)
+        state = (si.spawn_ray(si.to_world(bs.wo)), dr.select(active, weight, 0.0), active,
+                 dr.full(mi.Bool, False, n), mi.UInt32(used), mi.SurfaceInteraction3f(si),
+                 bs.pdf * sr, delta, dr.select(delta, 1, 0) + dr.zeros(mi.UInt32, n), rng, dr.zeros(mi.Color3f, n))
+
+        def body(ray, beta, active, last, used, prev, prev_pdf, prev_delta, mirrored, rng, result):
+            hit = scene.ray_intersect(ray, active)
+            segment = used + 1
+            # the emission seen, MIS-weighted against the previous vertex's light sample
+            emitter = hit.emitter(scene, active)
+            light_pdf = scene.pdf_emitter_direction(prev, mi.DirectionSample3f(scene, hit, prev), active & ~prev_delta)
+            w = dr.select(prev_delta, 1.0, mis(prev_pdf, light_pdf))
+            result += dr.select(active, beta * mi.Color3f(emitter.eval(hit, active)) * w, 0.0)
+            go = active & hit.is_valid() & ~last & (segment < depth)
+            bsdf = hit.bsdf(ray)
+            diffuse = surfaces.diffuse(hit, go)
+            result += beta * light_sample(scene, hit, bsdf, mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
+            # a diffuse hit: the stored light of particle hits k >= 2 that fit in the depth left
+            index, readable = layers.read_table(mi.Int32(depth) - mi.Int32(segment))
+            read = go & diffuse & readable
+            stored = dr.gather(mi.Color3f, tables, index * (2 * table.count) + patch_side(table, hit), read)
+            result += dr.select(read, beta * stored * reflectance_toward(bsdf, hit, read), 0.0)
+            # the next segment: after a diffuse hit only to see its emission (MIS)
+            bs, weight = bsdf.sample(mi.BSDFContext(), hit, rng.next_float32(go),
+                                     mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
+            delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            beta = beta * mi.Color3f(weight)
+            survive = dr.minimum(dr.max(dr.abs(beta)), 0.95)
+            roulette = go & ~diffuse & (segment >= RR_DEPTH)
+            go &= ~roulette | (rng.next_float32(roulette) < survive)
+            beta = dr.select(roulette, beta / dr.select(survive > 0, survive, 1.0), beta)
+            mirrored = mirrored + dr.select(delta, 1, 0)
+            go &= (bs.pdf > 0) & dr.any(beta != 0) & (mirrored <= mirrors)
+            return (hit.spawn_ray(hit.to_world(bs.wo)), beta, go, diffuse, segment,
+                    mi.SurfaceInteraction3f(hit), bs.pdf, delta, mirrored, rng, result)
+
+        with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):     # (traced once: see qmc_particles)
+            return dr.while_loop(state, lambda *s: s[2], body)[10]
+
+    def first_patch_side(self, si, active):
+        """Patch side of the visible points on purely diffuse surfaces (neighbour
+        sharing), 0xFFFFFFFF elsewhere."""
+        diffuse = self.surfaces.diffuse(si, active)
+        return dr.select(diffuse, patch_side(self.table, si), 0xFFFFFFFF)
+
+
+def camera_chain(scene, ray, rng, max_depth, mirror_depth, hide_emitters):
+    """``camera.specular_chain`` with Mitsuba's ``hide_emitters``: the first segment passes
+    through area emitters (as ``prb``'s ``skip_area_emitters``; Mitsuba's ``path`` shows
+    what lies behind a hidden emitter) and does not see the environment. ``surface``: the
+    first segment met a surface that is not hidden (the film's alpha)."""
+    ctx = mi.BSDFContext()
+    depth_limit = mi.UInt32(max_depth if max_depth >= 0 else UNBOUNDED)
+    bounce_limit = mi.UInt32(mirror_depth if mirror_depth >= 0 else UNBOUNDED)
+
+    def body(ray, throughput, emission, active, reached, surface, depth, rng):
+        si = scene.ray_intersect(ray, active)
+        emitter = si.emitter(scene, active)
+        hidden = active & si.is_valid() & (depth == 0) & (emitter != None) if hide_emitters else mi.Bool(False)  # noqa
+        on = active & ~hidden
+        seen = on & (depth < depth_limit)      # hits, and misses that see the environment
+        show = seen & si.is_valid()
+        surface |= show & (depth == 0)
+        visible = seen & (depth > 0) if hide_emitters else seen
+        emission += dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
+        bsdf = si.bsdf(ray)
+        flags = bsdf.flags()
+        specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        reached |= show & ~specular & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        follow = show & specular & (depth + 1 < depth_limit) & (depth < bounce_limit)
+        bs, w = bsdf.sample(ctx, si, rng.next_float32(follow), mi.Point2f(rng.next_float32(follow),
+                                                                           rng.next_float32(follow)), follow)
+        throughput = dr.select(follow, throughput * mi.Color3f(w), throughput)
+        survive = dr.minimum(dr.max(throughput), 0.95)
+        roulette = follow & (depth + 1 >= CHAIN_RR_DEPTH)
+        follow &= ~roulette | (rng.next_float32(roulette) < survive)
+        throughput = dr.select(roulette & follow, throughput / survive, throughput)
+        follow &= dr.max(throughput) > 0
+        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), dr.select(hidden, si.spawn_ray(ray.d), ray))
+        depth = dr.select(follow, depth + 1, depth)
+        return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
+
+    n = dr.width(ray.o)
+    with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
+                               dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
+                              lambda *state: state[3], body)
+    chain = SpecularChain()
+    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
+    return chain
