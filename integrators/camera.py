@@ -101,3 +101,36 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
     chain = SpecularChain()
     chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.depth, _ = state
     return chain
+
+
+def first_shown(scene, ray, hide_emitters, active=True):
+    """The surface interaction of the first surface a camera ray shows: with
+    ``hide_emitters`` (Mitsuba's meaning) the ray passes through area emitters, whose
+    shapes are hidden with their emission."""
+    si = scene.ray_intersect(ray, active)
+    if not hide_emitters:
+        return si
+
+    def body(ray, si, active):
+        hidden = active & si.is_valid() & (si.emitter(scene, active) != None)  # noqa: E711
+        ray = dr.select(hidden, si.spawn_ray(ray.d), ray)
+        si = dr.select(hidden, scene.ray_intersect(ray, hidden), si)
+        return ray, si, hidden
+
+    return dr.while_loop((ray, si, mi.Bool(active)), lambda ray, si, active: active, body)[1]
+
+
+def unoccluded(scene, si, target, hide_emitters, active=True):
+    """Per lane: nothing blocks the segment from ``si`` to the point ``target`` (hidden
+    area emitters let it pass with ``hide_emitters``)."""
+    if not hide_emitters:
+        return mi.Bool(active) & ~scene.ray_test(si.spawn_ray_to(target), active)
+
+    def body(at, clear, active):
+        hit = scene.ray_intersect(at.spawn_ray_to(target), active)
+        passes = active & hit.is_valid() & (hit.emitter(scene, active) != None)  # noqa: E711
+        clear &= ~(active & hit.is_valid() & ~passes)
+        at = dr.select(passes, hit, at)
+        return at, clear, passes
+
+    return dr.while_loop((si, mi.Bool(active), mi.Bool(active)), lambda at, clear, active: active, body)[1]

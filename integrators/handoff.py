@@ -1,4 +1,4 @@
-"""Light seen through the delta and null lobes of a surface, estimated by Mitsuba's ``path``.
+"""Light seen through the delta and null lobes of a surface, estimated by Mitsuba's ``volpath``.
 
 The package's estimators cover the *smooth* lobes of the surface a camera path reaches:
 ``stochastic_ray`` connects light paths to the camera through them, ``ray_bundle`` and
@@ -8,8 +8,12 @@ reflect, refract or let light pass through *delta* lobes (``conductor``, ``diele
 ``mask``, the polarizers of RGB variants); no connection or stored value can reach
 those. :class:`Handoff` completes the estimate: it samples the surface's full BSDF once,
 and where the sample falls on a delta or null lobe it continues the path with Mitsuba's
-own ``path`` integrator (``Integrator.sample`` on the sampled ray, drawing from the
-camera pass's sampler) and weights the result by the sample's weight. Where a smooth
+own ``volpath`` integrator (``Integrator.sample`` on the sampled ray, drawing from the
+camera pass's sampler) and weights the result by the sample's weight. ``volpath``, not
+``path``: its light samples pass null surfaces (``mask``, ``null``) with their
+transmittance, where Mitsuba 3.9.1's ``path`` counts them as blockers and renders the
+light behind them too dark (docs/findings.md); without media the two are the same
+estimator otherwise. Where a smooth
 lobe is sampled it adds nothing (the integrator's estimator covers those lobes in full),
 so the sum is an unbiased estimate of every lobe's share.
 
@@ -30,7 +34,7 @@ def has_non_smooth(bsdf):
 
 
 class Handoff:
-    """Continue camera paths through non-smooth lobes with Mitsuba's ``path``."""
+    """Continue camera paths through non-smooth lobes with Mitsuba's ``volpath``."""
 
     def __init__(self, max_depth=-1):
         self.max_depth = int(max_depth)
@@ -38,7 +42,7 @@ class Handoff:
 
     def _path(self, depth):
         if depth not in self._paths:
-            self._paths[depth] = mi.load_dict({"type": "path", "max_depth": int(depth)})
+            self._paths[depth] = mi.load_dict({"type": "volpath", "max_depth": int(depth)})
         return self._paths[depth]
 
     def sample(self, scene, sampler, si, bsdf, used, active, max_used=1):

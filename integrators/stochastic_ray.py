@@ -6,6 +6,7 @@ import mitsuba as mi
 from mi_plugins import limits, seeds, support
 from mi_plugins.integrators import burn_in
 from mi_plugins.integrators.core import MAX_ITERATIONS, CoreIntegrator, coverage
+from mi_plugins.integrators.camera import first_shown, unoccluded
 from mi_plugins.integrators.handoff import Handoff
 from mi_plugins.lights import sample_light_rays
 from mi_plugins.params import Params
@@ -204,11 +205,11 @@ class StochasticRayIntegrator(CoreIntegrator):
         scene = frame.scene
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
-        si = scene.ray_intersect(cam.ray)
+        si = first_shown(scene, cam.ray, self.hide_emitters)
         value = mi.Color3f(0.0)
         if self.max_depth != 0:
-            seen = mi.Bool(True) if not self.hide_emitters else mi.Bool(False)
-            value += dr.select(seen, mi.Color3f(si.emitter(scene, seen).eval(si, seen)), 0.0)
+            if not self.hide_emitters:     # (hidden: area emitters are passed through, the sky unseen)
+                value += mi.Color3f(si.emitter(scene).eval(si))
             value += self.handoff.sample(scene, cam.sampler, si, si.bsdf(cam.ray), 1, si.is_valid())
         frame.put_camera(cam, value, coverage=coverage(scene, si, self.hide_emitters))
 
@@ -235,7 +236,9 @@ class StochasticRayIntegrator(CoreIntegrator):
         can_splat = hit & (depth_hit + 1 <= max_depth) & do_splat
         ds, sensor_w = sensor.sample_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), can_splat)
         visible = can_splat & (ds.pdf > 0)
-        visible &= ~scene.ray_test(si.spawn_ray_to(ds.p), visible)
+        if self.hide_emitters:   # hidden area emitters: the camera sees through them, not them
+            visible &= si.emitter(scene, visible) == None  # noqa: E711
+        visible = unoccluded(scene, si, ds.p, self.hide_emitters, visible)
         value = self._path_weight(si, bsdf, radiance, si.to_local(ds.d), to_light, cos_light, visible)
         frame.put_light(ds.uv, value * power * mi.Color3f(sensor_w), "light", active=visible)
         # --- next ray: a BSDF sample, weighted as path weights the same path

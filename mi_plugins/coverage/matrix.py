@@ -129,7 +129,7 @@ def reference(row_key, resolution=RESOLUTION, seed=0, quick=False):
     key = (row_key, resolution, seed, runs, spp)
     if key not in _REFERENCES:
         build = row.reference_scene or row.build
-        integ = {"type": row.reference, "max_depth": depth_of(row)}
+        integ = dict({"type": row.reference, "max_depth": depth_of(row)}, **row.params)
         images, seconds, _ = _render(build(resolution), integ, spp, _seeds(seed, runs, 1))
         _REFERENCES[key] = (images, seconds)
     return _REFERENCES[key]
@@ -142,7 +142,7 @@ def clear_references():
 def cell_integrator(row, name, quick=False):
     """(integrator dict, spp, runs) of the cell (row, integrator ``name``)."""
     spec = expectations.spec_of(name)
-    params = dict(spec.params, max_depth=depth_of(row))
+    params = dict(spec.params, max_depth=depth_of(row), **row.params)
     params.update(spec.row_params.get(row.key, {}))
     if row.wrap is not None:
         params = row.wrap(params)
