@@ -113,17 +113,17 @@ def test_short_chains_without_burn_in_show_the_power_defect():
 
 
 def test_hide_emitters():
-    """hide_emitters=True leaves out the emission seen directly: the furnace box shows
-    L - Le = expected(-1) - expected(1). Test of the test: the same renders fail against
-    the full radiance (they are half of it)."""
+    """hide_emitters as Mitsuba means it: camera rays pass through area emitters. In the
+    furnace box every wall emits, so the camera sees nothing (black, as Mitsuba's path
+    renders it); without hide_emitters the same renders show L = 1. (What lies behind a
+    hidden lamp is checked against path by the coverage row case:hide_emitters.)"""
     case = analytic.furnace(0.5, 0.5, "box", resolution=RES)
-    images = render_runs(case.scene(integrator(hide_emitters=True, **BASE)), 64, seed=5)
-    exact = case.expected(-1) - case.expected(1)
-    ok = harness.compare(images, exact)
-    assert ok["passed"], ok["failures"]
-    bad = harness.compare(images, case.expected(-1))
-    assert not bad["passed"] and bad["z"] < -20, (bad["z"], bad["failures"])
-    close_t(bad["mean"] / bad["expected_mean"], 0.5, bad["se"], bad["runs"], what="hidden / full radiance")
+    hidden = render_runs(case.scene(integrator(hide_emitters=True, **BASE)), 4, seed=5)
+    assert np.all(hidden == 0)
+    path = np.array(mi.render(case.scene({"type": "path", "hide_emitters": True}), spp=16))
+    assert np.all(path == 0)
+    shown = render_runs(case.scene(integrator(**BASE)), 4, seed=5)
+    assert shown.mean() > 0.9
 
 
 def wrong_images(exact):
