@@ -26,7 +26,7 @@ import drjit as dr
 import mitsuba as mi
 from mi_plugins import analytic
 from mi_plugins.analytic import harness
-from mi_plugins.meshtable import NonMeshShapeError
+from mi_plugins.support import Unsupported
 from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
 
 import budget
@@ -143,7 +143,7 @@ def test_curved_patches_evaluated_where_they_face_away_fail(monkeypatch, name, c
     """Test of the test: the patch point evaluated as it stands (a point facing away
     from the direction gives the whole cell zero) fails the same checks."""
     from mi_plugins.integrators.ray_bundle import transfer
-    monkeypatch.setattr(transfer, "on_side", lambda v, sign: v)
+    monkeypatch.setattr(transfer, "on_side", lambda v, n, sign: v)
     out = analytic.check(case(), cfg, spp=1, runs=32, seed=5)
     assert not out.passed and out.z < -8, out
 
@@ -386,8 +386,8 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
     from mi_plugins.integrators.ray_bundle.transfer import Transport
     source = Transport.source
 
-    def doubled(self, si, rng):
-        return source(self, si, rng) + mi.Color3f(si.emitter(self.scene).eval(si))
+    def doubled(self, si, tri):
+        return source(self, si, tri) + mi.Color3f(si.emitter(self.scene).eval(si))
     monkeypatch.setattr(Transport, "source", doubled)
     res = check("furnace_box", rb(32, first_shot=True))
     assert not res.passed and abs(res.z) > 8, res
@@ -399,11 +399,12 @@ def test_diffuse_patches_share_one_direct_light_estimate(monkeypatch):
     its running mean, not one per chain and patch. Exact in the furnace box; test of the
     test: a shared mean 10 % low fails (the direct light is about a third of the
     image: 3 % gave z = -4.9, within the bound)."""
-    from mi_plugins.integrators.ray_bundle import direct
+    from mi_plugins.integrators.ray_bundle import direct, frozen
+    monkeypatch.setattr(frozen, "ENABLED", False)       # count the calls of every iteration, not a recording
     calls, update = [], direct.SharedDirect.update
 
     def counted(self):
-        calls.append((dr.width(self.sum), self.table.count))
+        calls.append((dr.width(self.state.sum), self.table.count))
         update(self)
     monkeypatch.setattr(direct.SharedDirect, "update", counted)
     cfg = rb(32, first_shot=True)
@@ -419,19 +420,17 @@ def test_diffuse_patches_share_one_direct_light_estimate(monkeypatch):
 
 def test_default_chains_fit_a_quarter_of_the_memory():
     """chains=64 by default, fewer (at least 1) where 64 would need over a quarter of
-    the available memory; an explicit value is kept (and refused when it does not fit)."""
-    from mi_plugins.integrators.ray_bundle.transfer import BYTES_PER_LANE, ChainLayout
-
-    class Table:
-        count = 1000
-    lane = BYTES_PER_LANE * 2 * Table.count           # bytes per chain, two sides
-    assert ChainLayout.default_chains(64, Table, 2, None) == 64
-    assert ChainLayout.default_chains(64, Table, 2, 4 * lane * 100) == 64
-    assert ChainLayout.default_chains(64, Table, 2, 4 * lane * 10 + 1) == 10
-    assert ChainLayout.default_chains(64, Table, 2, 1) == 1
+    the available memory (lanes and lines of a chain); an explicit value is kept (and
+    refused when it does not fit)."""
+    from mi_plugins.integrators.ray_bundle.limits import chain_bytes, default_chains
+    per_chain = chain_bytes(2000, 32)        # 1000 patches, two sides, 32^2 lines
+    assert default_chains(64, 2000, 32, None) == 64
+    assert default_chains(64, 2000, 32, 4 * per_chain * 100) == 64
+    assert default_chains(64, 2000, 32, 4 * per_chain * 10 + 1) == 10
+    assert default_chains(64, 2000, 32, 1) == 1
     integ = mi.load_dict({"type": "ray_bundle"})
     assert integ.chains is None and (integ.resolution, integ.iterations, integ.burn_in) == (32, 16, 8)
-    assert integ.first_shot and integ.average_diffuse
+    assert integ.first_shot and integ.average_diffuse and integ.max_depth == -1 and integ.adaptive
 
 
 # hide_emitters: the directly seen emission is left out of the image
@@ -542,7 +541,8 @@ def test_average_of_the_wrong_radiance_fails(monkeypatch, first_shot, gather_nee
     reflected part R when the direct light is not added at the gathered point
     (``gather_nee=false``), must fail the furnace check."""
     from mi_plugins.integrators.ray_bundle import RayBundleIntegrator
-    monkeypatch.setattr(RayBundleIntegrator, "_averaged_radiance", lambda self, state: getattr(state, averaged))
+    monkeypatch.setattr(RayBundleIntegrator, "_averaged_radiance",
+                        lambda self, state: [state.L[0] if averaged == "L" else state.R])
     cfg = rb(16, average_diffuse=True, first_shot=first_shot, gather_nee=gather_nee)
     res = check("furnace_box", cfg, seed=4)
     assert not res.passed and abs(res.z) > 8, res
@@ -609,21 +609,17 @@ def assert_same_image(a, b):
 
 def test_a_shape_without_patches_is_rejected_by_name():
     """Meshes and the analytic rectangle, disk, sphere and cylinder have patches; other
-    shapes (here an instance) are refused with an error naming the shape, also through
-    mi.render (where Mitsuba chains it)."""
+    shapes (here an instance) are refused before any work, naming the plugin and the
+    shape, also through mi.render (where Mitsuba chains it)."""
     d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2))
     d["group"] = {"type": "shapegroup", "s": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.1)}}
     d["inst"] = {"type": "instance", "shapegroup": {"type": "ref", "id": "group"}}
     scene = mi.load_dict(d, optimize=False)
-    with pytest.raises(NonMeshShapeError, match=r"shape 'inst' \(Instance\) is neither a triangle mesh"):
+    with pytest.raises(Unsupported, match=r"ray_bundle: the shape 'instance' \(id 'inst'\) is not supported: .*"
+                                          r"convert it to a mesh"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
-    with pytest.raises(Exception) as err:
-        mi.render(scene, spp=1)
-    chain, e = [], err.value
-    while e is not None:
-        chain.append(str(e))
-        e = e.__cause__
-    assert any("'inst' (Instance)" in c for c in chain), chain
+    e = _refusal(scene)
+    assert e.feature == "instance", str(e)
 
 
 def test_delta_lights_need_first_shot():
@@ -634,12 +630,60 @@ def test_delta_lights_need_first_shot():
         scene.integrator().render(scene, 0, seed=0, spp=1)
 
 
-def test_delta_surface_warns():
-    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2, burn_in=0))
+def _furnace_with(bsdf, **cfg):
+    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2, burn_in=0, **cfg))
     shape = next(k for k, v in d.items() if isinstance(v, dict) and "bsdf" in v)
-    d[shape]["bsdf"] = {"type": "conductor"}
-    with pytest.warns(RuntimeWarning, match="delta"):
-        mi.render(mi.load_dict(d), spp=1)
+    d[shape]["bsdf"] = bsdf
+    return mi.load_dict(d), shape
+
+
+def _refusal(scene):
+    """The refusal mi.render raises (Mitsuba chains it: the package's error is a cause)."""
+    with pytest.raises(Exception) as err:
+        mi.render(scene, spp=1)
+    e = err.value
+    while e is not None and not isinstance(e, Unsupported):
+        e = e.__cause__
+    assert e is not None, err.value
+    return e
+
+
+@pytest.mark.parametrize("bsdf,feature,why", [
+    ({"type": "conductor"}, "conductor", "purely specular"),
+    ({"type": "dielectric"}, "dielectric", "purely specular"),
+    ({"type": "null"}, "null", "null lobe"),
+    ({"type": "mask", "opacity": 0.5, "bsdf": {"type": "diffuse"}}, "mask", "null lobe"),
+    ({"type": "thindielectric"}, "thindielectric", "null lobe"),
+    ({"type": "polarizer"}, "polarizer", "null lobe"),
+    ({"type": "roughdielectric", "alpha": 0.2}, "roughdielectric", "transmits"),
+    ({"type": "twosided", "bsdf": {"type": "conductor"}}, "twosided", "purely specular")])
+def test_surfaces_the_bundles_cannot_cross_are_refused(bsdf, feature, why):
+    """Before any work, with the integrator, the feature (plugin and shape), why and what
+    to use instead. Formerly a delta surface gave a RuntimeWarning only and null lobes,
+    transmission nothing (a wrong image)."""
+    scene, shape = _furnace_with(bsdf)
+    e = _refusal(scene)
+    text = str(e)
+    assert e.integrator == "ray_bundle" and e.feature == feature, text
+    assert text.startswith("ray_bundle: the BSDF '%s' of shape '%s' is not supported" % (feature, shape)), text
+    assert why in text and "'path'" in text, text
+
+
+def test_delta_surfaces_render_with_a_warning_when_accepted():
+    """delta_surfaces='camera_only': the user accepts the missing light; a RuntimeWarning
+    names the shapes."""
+    scene, shape = _furnace_with({"type": "conductor"}, delta_surfaces="camera_only")
+    with pytest.warns(RuntimeWarning, match=r"shape\(s\) '%s' have purely delta" % shape):
+        img = np.array(mi.render(scene, spp=1))
+    assert np.all(np.isfinite(img))
+
+
+def test_participating_media_are_refused():
+    scene, shape = _furnace_with({"type": "diffuse"})
+    d = analytic.furnace(0.5, 0.5, "box", resolution=8).scene_dict(dict(PAPER, iterations=2, burn_in=0))
+    d["sensor"]["medium"] = {"type": "homogeneous", "sigma_t": 0.1}
+    e = _refusal(mi.load_dict(d))
+    assert e.feature == "homogeneous" and "volpath" in str(e), str(e)
 
 
 def test_fixed_seed_is_deterministic_and_progress_stops():
@@ -733,17 +777,21 @@ def test_a_coarse_line_offset_would_skip_the_lamp(monkeypatch):
 
 
 def test_a_layout_beyond_the_available_memory_is_refused(monkeypatch):
-    """chains x patch sides x 120 bytes (measured per lane) above the available memory:
-    a clear error naming the chains that fit, before any kernel runs (1 M triangles with
-    64 chains needed 10.8 GB); above a quarter of it, a warning."""
+    """Chains x patch sides (BYTES_PER_LANE measured per lane) plus their bundles' lines
+    above the available memory: a clear error naming the chains that fit, before any
+    kernel runs (1 M triangles with 64 chains needed 10.8 GB); above a quarter of it, a
+    warning."""
     from mi_plugins.integrators.ray_bundle import integrator as module
+    from mi_plugins.integrators.ray_bundle import limits
     scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(rb(64))     # 12 triangles: 1536 lanes
-    monkeypatch.setattr(module, "available_memory", lambda: 100_000)
-    with pytest.raises(MemoryError, match=r"ray_bundle: chains=64 x 24 patch sides \(12 patches\) = 0.00154 M lanes "
-                                          r"need about 0.0 GB per iteration, more than the 0.0 GB available; "
-                                          r"valid range here: chains <= 34"):
+    per_chain = limits.chain_bytes(24, 16)
+    monkeypatch.setattr(module, "available_memory", lambda: 10 * per_chain)
+    fit = (10 * per_chain - 12 * limits.BYTES_PER_PATCH) // per_chain
+    with pytest.raises(MemoryError, match=r"ray_bundle: chains=64 x 24 patch sides \(12 patches\) x 1 order\(s\) = "
+                                          r"0.00154 M lanes and 0.0164 M lines need about [0-9.]+ GB per iteration, "
+                                          r"more than the [0-9.]+ GB available; valid range here: chains <= %d" % fit):
         scene.integrator().render(scene, 0, seed=0, spp=1)
-    monkeypatch.setattr(module, "available_memory", lambda: 400_000)
+    monkeypatch.setattr(module, "available_memory", lambda: 3 * 64 * per_chain)
     with pytest.warns(RuntimeWarning, match="over a quarter of"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
     monkeypatch.setattr(module, "available_memory", lambda: None)        # not known: no check

@@ -1,20 +1,26 @@
 """The ``ray_bundle`` integrator: parameters and the iteration loop."""
-import warnings
+import gc
+from collections import OrderedDict
 
-import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from mi_plugins import seeds
 from mi_plugins.integrators.core import CoreIntegrator
-from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
-from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, chain_directions, global_directions
-from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources, final_gathering
-from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport, available_memory
-from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
+from mi_plugins.integrators.ray_bundle import checks
+from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
+from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
+from mi_plugins.integrators.ray_bundle import frozen
+from mi_plugins.integrators.ray_bundle.frozen import FrozenStep
+from mi_plugins.integrators.ray_bundle.limits import available_memory
+from mi_plugins.integrators.ray_bundle.run import Run, touch
+from mi_plugins.meshtable import default_patch_size, patch_parameters, scene_bounds
 from mi_plugins.params import Params
 
 #: the chains of the default (fewer where they would need over a quarter of the memory)
 DEFAULT_CHAINS = 64
+#: renders whose frozen steps an integrator keeps (one per scene and settings)
+FROZEN_CACHE = 4
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
@@ -203,14 +209,48 @@ class RayBundleIntegrator(CoreIntegrator):
         self.average_diffuse = p.bool("average_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide = patch_parameters(p)
+        self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
+        self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
+        self.adaptive = p.bool("adaptive", True)
         self.split = None      # a distributed render's task (see split.py); None: a whole render
+        self._frozen = OrderedDict()
+        self._unfrozen, self._last_key = set(), None      # keys whose steps could not be frozen
+
+    def frozen_steps(self, key, enabled):
+        """The frozen steps (advance, image) of renders with ``key`` (see run.Run._key): a
+        later render of the same scene and settings replays the kernels recorded by the
+        first (the last ``FROZEN_CACHE`` keys are kept)."""
+        self._last_key = key
+        enabled = bool(enabled and frozen.ENABLED and key not in self._unfrozen)
+        key = key + (enabled,)
+        if key not in self._frozen:
+            self._frozen[key] = (FrozenStep("_advance", enabled), FrozenStep("_image", enabled))
+            while len(self._frozen) > FROZEN_CACHE:
+                self._frozen.popitem(last=False)
+        self._frozen.move_to_end(key)
+        return self._frozen[key]
+
+    def orders(self):
+        """Radiance values per lane: 1 (unbounded depth), else the bounce orders a path of
+        ``max_depth`` segments can read from a patch (at least 1)."""
+        if self.max_depth < 0:
+            return 1
+        return max(1, self.max_depth - (2 if self.first_shot else 1))
+
+    def counts(self, spp):
+        """(iterations, burn-in) of a render with ``spp``: ``iterations * spp`` and
+        ``burn_in``, both raised where a finite depth needs a longer burn-in (every order
+        present from the first averaged iteration)."""
+        total, burn_in = self.iterations * int(spp), self.burn_in
+        extra = max(0, self.orders() - 1 - burn_in) if self.max_depth >= 0 else 0
+        return total + extra, burn_in + extra
 
     def iteration_count(self, spp):
         """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
         advances every chain), plus with ``average_diffuse`` the final gathering's passes
-        (one per averaged iteration)."""
-        total = self.iterations * int(spp)
-        return total + (total - self.burn_in if self.average_diffuse else 0)
+        (one per averaged iteration). An extended burn-in adds steps (see ``adaptive``)."""
+        total, burn_in = self.counts(spp)
+        return total + (total - burn_in if self.average_diffuse else 0)
 
     def patch_size_for(self, scene):
         """``patch_size``, or by default the scene's diagonal / 24, or twice the bundle's
@@ -218,18 +258,13 @@ class RayBundleIntegrator(CoreIntegrator):
         by most bundles: noise only)."""
         if self.patch_size is not None:
             return self.patch_size
-        spacing = 2.0 * scene.bbox().bounding_sphere().radius / self.resolution
+        lo, hi = scene_bounds(scene)
+        spacing = float(np.linalg.norm(hi - lo)) / self.resolution       # 2 x radius / resolution
         return max(default_patch_size(scene), 2.0 * spacing)
 
-    def _warn_delta(self, scene):
-        names = [s.id() for s in scene.shapes()
-                 if s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta)]
-        if names:
-            warnings.warn("ray_bundle: shape(s) %s have delta (mirror/glass) BSDF lobes; light transport "
-                          "through delta surfaces cannot be captured by random global directions, only "
-                          "camera rays are reflected by them. The result is biased where transport depends "
-                          "on them; use stochastic_ray or path for such scenes." % ", ".join(names),
-                          RuntimeWarning, stacklevel=3)
+    def check_scene(self, scene, sensor):
+        super().check_scene(scene, sensor)
+        checks.check_scene(scene, self.delta_surfaces)
 
     def _check_emitters(self, scene):
         """Without first_shot the bundles carry the emission of surfaces and of the
@@ -244,63 +279,45 @@ class RayBundleIntegrator(CoreIntegrator):
                                  % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
 
     def render_frame(self, frame):
-        scene, seed, split = frame.scene, frame.seed, self.split
-        self._check_emitters(scene)
-        table = MeshTable(scene, "ray_bundle", h=self.patch_size_for(scene), back_sides=True, subdivide=self.subdivide)
-        sides, memory = 2 if self.bidirectional else 1, available_memory()
-        chains = (split.chains if split is not None and split.chains else
-                  self.chains or ChainLayout.default_chains(DEFAULT_CHAINS, table, sides, memory))
-        layout = ChainLayout(table, chains, sides)
-        gather_only = split is not None and split.mode == "gather"
-        if not gather_only:
-            layout.check_memory(memory)
-        self._warn_delta(scene)
-        transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
-        estimator = ESTIMATORS[self.estimate](transport, self.hide_emitters, seed)
-        average = DiffuseAverage(layout, self.estimate, transport.weight) if self.average_diffuse else None
-        if gather_only:          # a distributed render's gathering task: the averages are given
-            average.load(*split.average)
-            directions = global_directions(self.direction_sequence, split.passes, chains,
-                                           seeds.numpy_rng(seed, "directions"), self.stratify_chains,
-                                           self.bidirectional)
-            frame.camera_passes(chains, split.passes)
-            steps = self.steps(0, 0, split.passes)
-            return final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
-                                   0, split.passes)
-        total, burn_in = self.iterations * frame.spp, self.burn_in
-        directions = global_directions(self.direction_sequence, total + 1, chains,
-                                       seeds.numpy_rng(seed, "directions"), self.stratify_chains, self.bidirectional)
-        # without averaging, every averaged iteration images everything; with it, the
-        # iterations image only the patches that are not averaged (none to image when all
-        # are) and the final gathering the averaged ones
-        sources = ChainSources(layout, skip=average)
-        image_iterations = average is None or not average.covers_all
-        frame.camera_passes(chains, (total - burn_in) * (int(image_iterations) + int(average is not None)))
-        state = transport.initial(chain_directions(directions[0]))
-        dr.eval(state, transport.state())
-        steps = self.steps(total, burn_in, self.iteration_count(frame.spp))
+        # no garbage collection during a render: a Mitsuba object of an earlier scene freed
+        # between two frozen steps changes the instance registry that the steps recorded
+        collect = gc.isenabled()
+        gc.disable()
         try:
-            for m in steps.iterations():
-                incoming = transport.transfer(state)
-                if m >= burn_in:
-                    if average is not None:
-                        average.add(state.dirs, self._averaged_radiance(state), incoming)
-                    if image_iterations:
-                        estimator.put(frame, frame.camera_pass(), state, incoming, sources, m, "iterations")
-                state = transport.reflect(state, incoming, chain_directions(directions[m + 1]))
-                dr.eval(state, transport.state(), frame.state(), average.state() if average is not None else None)
-                frame.commit()
-        except KeyboardInterrupt:
-            steps.stop()               # Ctrl-C: keep the finished iterations
+            self._render_frame(frame)
+        except frozen.FreezeFailed:
+            self._unfrozen.add(self._last_key)    # this scene and these settings: plain steps
             frame.rollback()
+            self._render_frame(frame)
+        finally:
+            if collect:
+                gc.enable()
+
+    def _render_frame(self, frame):
+        self._check_emitters(frame.scene)
+        run = Run(self, frame, available_memory(), DEFAULT_CHAINS)
+        split = self.split
+        if run.gather_only:          # a distributed render's gathering task: the averages are given
+            run.average.load(*split.average)
+            run.camera_passes(split.passes)
+            touch(frame.camera_block("final"))
+            run.final_gathering(self.steps(0, 0, split.passes), split.passes)
+            return
+        directions = DirectionStream(self.direction_sequence, run.layout.chains,
+                                     seeds.numpy_rng(frame.seed, "directions"), self.stratify_chains,
+                                     self.bidirectional, run.total + 1)
+        steps = self.steps(run.total, run.burn_in, self.iteration_count(frame.spp))
+        run.run(steps, directions)
         if split is not None:          # a distributed render's chain task: the averages, no image
-            split.result = average.numpy()
-        elif average is not None and self.progress.averaged > 0:
-            final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
-                            self.burn_in, self.progress.averaged)
+            split.result = run.average.numpy()
+        elif run.average is not None and self.progress.averaged > 0:
+            run.final_gathering(steps, self.progress.averaged)
 
     def _averaged_radiance(self, state):
-        """What the diffuse averages hold: what the gathered point does not add itself (the
-        reflected part R; with first_shot and gather_nee=false all of L but the emission,
-        which then is the direct light)."""
-        return state.L if self.first_shot and not self.gather_nee else state.R
+        """What the diffuse averages hold, per order: what the gathered point does not add
+        itself (the reflected part R; with first_shot and gather_nee=false all of L but
+        the emission, which then is the direct light). With a finite depth every order
+        (the gathered point reads those it may)."""
+        if self.max_depth >= 0:
+            return state.L
+        return [state.L[0]] if self.first_shot and not self.gather_nee else [state.R]
