@@ -56,14 +56,17 @@ def test_no_recompilation_between_iterations(name):
 
 
 def test_a_changing_literal_is_caught(monkeypatch):
-    """Test of the test: a transfer step that bakes the iteration's number into its kernel."""
-    from mi_plugins.integrators.ray_bundle import transfer
+    """Test of the test: a transfer step that bakes the iteration's number into its kernel
+    (ray_bundle's steps traced every iteration: a frozen step is traced once and replayed,
+    so no later literal could reach it)."""
+    from mi_plugins.integrators.ray_bundle import frozen, transfer
+    monkeypatch.setattr(frozen, "ENABLED", False)
     calls, original = [0], transfer.Transport.transfer
 
     def literal(self, state):
         calls[0] += 1
         incoming = original(self, state)
-        return incoming * (1.0 + 1e-7 * calls[0])        # a new literal every iteration
+        return [x * (1.0 + 1e-7 * calls[0]) for x in incoming]      # a new literal every iteration
     monkeypatch.setattr(transfer.Transport, "transfer", literal)
     scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(CONFIGS["ray_bundle"])
     new = new_kernels_per_step(scene)

@@ -95,3 +95,16 @@ def check_scene(scene, delta_surfaces="refuse"):
     warnings.warn("ray_bundle: shape(s) %s have purely delta (mirror/glass) BSDFs: %s. The image misses that "
                   "light (delta_surfaces='camera_only')." % (", ".join("'%s'" % s.id() for s, _ in delta), why),
                   RuntimeWarning, stacklevel=4)
+
+
+def check_emitters(scene, first_shot):
+    """Without first_shot the bundles carry the emission of surfaces and of the
+    environment: a delta light (point, spot, directional) cannot be carried."""
+    if first_shot:
+        return
+    for emitter in scene.emitters():
+        if int(emitter.flags()) & int(mi.EmitterFlags.Delta):
+            raise ValueError("ray_bundle: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
+                             "with first_shot=false; use first_shot=true (its next-event estimation lights "
+                             "the patches and the visible points with delta lights)"
+                             % (emitter.id(), str(emitter).split("[", 1)[0].strip()))

@@ -12,6 +12,7 @@ Dr.Jit value (directions, seeds, random states), never a Python number, so a rep
 never reuses a stale value.
 """
 import dataclasses
+from collections import OrderedDict
 
 import drjit as dr
 import mitsuba as mi
@@ -129,6 +130,31 @@ class FrozenStep:
     @property
     def recordings(self):
         return self.frozen.n_recordings if self.frozen is not None else 0
+
+
+class StepCache:
+    """An integrator's frozen steps (advance, image) per render key (see run.Run._key): a
+    later render of the same scene and settings replays the kernels recorded by the
+    first; the last ``size`` keys are kept. Keys whose steps could not be recorded
+    (:class:`FreezeFailed`) get plain steps."""
+
+    def __init__(self, size):
+        self.size, self.steps, self.unfrozen, self.last = int(size), OrderedDict(), set(), None
+
+    def get(self, key, enabled):
+        self.last = key
+        enabled = bool(enabled and ENABLED and key not in self.unfrozen)
+        key = key + (enabled,)
+        if key not in self.steps:
+            self.steps[key] = (FrozenStep("_advance", enabled), FrozenStep("_image", enabled))
+            while len(self.steps) > self.size:
+                self.steps.popitem(last=False)
+        self.steps.move_to_end(key)
+        return self.steps[key]
+
+    def failed(self):
+        """The last key's steps could not be recorded: plain steps from now on."""
+        self.unfrozen.add(self.last)
 
 
 def fingerprint(scene):

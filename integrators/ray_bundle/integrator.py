@@ -1,6 +1,5 @@
 """The ``ray_bundle`` integrator: parameters and the iteration loop."""
 import gc
-from collections import OrderedDict
 
 import mitsuba as mi
 import numpy as np
@@ -11,7 +10,6 @@ from mi_plugins.integrators.ray_bundle import checks
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
 from mi_plugins.integrators.ray_bundle import frozen
-from mi_plugins.integrators.ray_bundle.frozen import FrozenStep
 from mi_plugins.integrators.ray_bundle.limits import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
 from mi_plugins.meshtable import default_patch_size, patch_parameters, scene_bounds
@@ -34,24 +32,29 @@ class RayBundleIntegrator(CoreIntegrator):
     ---------------------------------------------------------
 
     Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the patches of
-    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the current global
-    direction w_m (and -w_m when ``bidirectional``). Each iteration transfers all patch
-    radiances along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines
-    across the scene's bounding sphere (jittered every iteration; every line walks ALL its
-    successive hits, continuing 1e-6 x the scene's scale beyond each, so that a lamp 0.1 mm
-    under a ceiling is not skipped, and consecutive hits facing each other exchange radiance), picks a
-    new random direction w_{m+1} and reflects:
-    L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j A(i,j,w_m) / A_i L[j]
-    (2 pi per direction when bidirectional). Emission and BSDF are evaluated at a fresh
-    uniformly random point of each patch every iteration (unbiased patch averages:
-    textured emission and albedo work). Memory: O(chains x (patches + resolution^2)), no
-    per-pair storage: about 93-116 bytes per chain and patch side (64 chains on 70 k triangles:
-    0.8 GB); a render needing more than the available memory is refused, naming the chains
-    that fit (a warning above a quarter of it).
+    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the
+    current global direction w_m (and -w_m when ``bidirectional``). Each iteration
+    transfers all patch radiances along w_m with a bundle of ``resolution`` x
+    ``resolution`` parallel lines across the scene's bounding sphere (jittered every
+    iteration; every line walks ALL its successive hits, continuing 1e-6 x the scene's
+    scale beyond each, so that a lamp 0.1 mm under a ceiling is not skipped, and
+    consecutive hits facing each other exchange radiance), picks a new random direction
+    w_{m+1} and reflects: L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j
+    A(i,j,w_m) / A_i L[j] (2 pi per direction when bidirectional). The source term (the
+    emission, or with ``first_shot`` the direct light) is evaluated where a line leaves
+    a surface, the carried part per patch at a fresh uniformly random point of each patch
+    every iteration (unbiased patch averages: textured emission and albedo work). Every
+    kind of iteration and camera pass is traced once and replayed (``dr.freeze``; a later
+    render of the same scene and settings replays too). Memory: O(chains x (patches +
+    resolution^2)), no per-pair storage; every size is checked before any work against
+    the available memory and documented maxima (``limits.py``: at most 2^20 iterations
+    per render, 2^31 lanes, lines and camera samples per pass; a camera pass takes as
+    many chains as fit), with a clear error naming what fits.
 
     **Defaults** are the settings that measure best at equal time on the Cornell box and
     the closed diffuse scenes (``docs/real_scenes.md``): 64 chains of 32 x 32 lines,
-    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``.
+    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``, the burn-in
+    extended where the chains still converge (``adaptive``).
     **Paper settings** (sections 5-6, the figure-7 reproduction): ``chains`` 1,
     ``resolution`` 128, ``iterations`` 64, ``first_shot`` false, ``average_diffuse`` false
     (``PAPER_SETTINGS`` in this module).
@@ -153,6 +156,26 @@ class RayBundleIntegrator(CoreIntegrator):
        - bool
        - false
        - do not show directly visible emitters
+     * - max_depth
+       - int
+       - -1
+       - -1 (unbounded) or 0 .. 64, Mitsuba's meaning (1: emission only, 2: direct
+         light); the chains keep every bounce order apart (memory x orders), the burn-in
+         is at least the orders - 1, and the image reads the orders each path may reach
+     * - delta_surfaces
+       - string
+       - ``'refuse'``
+       - ``'refuse'``: a purely specular surface (``conductor``, ``dielectric``) is
+         refused (the bundles cannot pass light on through it); ``'camera_only'``: render
+         anyway, the camera seeing through it, with a RuntimeWarning naming the shapes
+     * - adaptive
+       - bool
+       - true
+       - after the averaged iterations, predict the average's bias from the chains (their
+         reflected share of the power gives the contraction ratio; the growth between the
+         halves of the average) and, above 1 %, extend the burn-in by what the prediction
+         asks for, up to 8x the planned iterations; a RuntimeWarning gives the numbers
+         where the cap is reached, or always with false
 
     **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global
     iterations of every chain (``burn_in`` once); every averaged iteration traces one
@@ -163,17 +186,24 @@ class RayBundleIntegrator(CoreIntegrator):
     Camera rays are followed through purely specular surfaces to the first non-delta one.
     **Scenes:** patches are the triangles of meshes (long ones split, see ``patch_size``)
     and cells of the analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along
-    their own uv; other shapes raise ``NonMeshShapeError`` naming the shape.
+    their own uv; other shapes (instances, curves, ellipsoids, SDF grids) are refused.
     Orientation is Mitsuba's (winding, ``flip_normals``): one-sided BSDFs send and receive
     on their front only, two-sided ones (``twosided``) have a patch per side. The
     environment emitter (``constant``, ``envmap``) lights the patches through the bundles
     (with ``first_shot`` by next-event estimation) and is seen by the camera; delta lights
     (``point``, ``spot``, ``directional``) need ``first_shot=true`` (an error says so).
-    Transport *through* delta (mirror/glass) surfaces cannot be captured by random global
-    directions: a ``RuntimeWarning`` names the shapes with delta lobes. The radiance is
-    constant per patch: where the true radiance varies within a patch the result is its
-    patch average (exact in the furnace and constant-radiance cases, and on spheres, whose
-    point-to-patch form factor is the same for every receiving point).
+    **Refused before any work** (``mi_plugins.support.Unsupported``, naming the plugin,
+    the shape, why and what to use instead): participating media; BSDFs with a null lobe
+    (``null``, ``mask``, ``thindielectric``, ``hair``, the polarizers), which the lines
+    cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
+    specular surfaces (see ``delta_surfaces``). The delta lobe of a mixed BSDF (the
+    specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
+    point, and reflects the direct light into the bundles (``first_shot``'s BSDF
+    sample). The radiance carried by the bundles is constant per patch: where it varies
+    within a patch the result is its patch average (exact in the furnace and
+    constant-radiance cases, and on spheres, whose point-to-patch form factor is the same
+    for every receiving point); a smaller ``patch_size`` (or a higher ``resolution``,
+    which sets the default) lowers that bias.
 
     .. code-block:: python
 
@@ -213,22 +243,7 @@ class RayBundleIntegrator(CoreIntegrator):
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
         self.split = None      # a distributed render's task (see split.py); None: a whole render
-        self._frozen = OrderedDict()
-        self._unfrozen, self._last_key = set(), None      # keys whose steps could not be frozen
-
-    def frozen_steps(self, key, enabled):
-        """The frozen steps (advance, image) of renders with ``key`` (see run.Run._key): a
-        later render of the same scene and settings replays the kernels recorded by the
-        first (the last ``FROZEN_CACHE`` keys are kept)."""
-        self._last_key = key
-        enabled = bool(enabled and frozen.ENABLED and key not in self._unfrozen)
-        key = key + (enabled,)
-        if key not in self._frozen:
-            self._frozen[key] = (FrozenStep("_advance", enabled), FrozenStep("_image", enabled))
-            while len(self._frozen) > FROZEN_CACHE:
-                self._frozen.popitem(last=False)
-        self._frozen.move_to_end(key)
-        return self._frozen[key]
+        self.step_cache = frozen.StepCache(FROZEN_CACHE)      # the frozen steps of the last renders
 
     def orders(self):
         """Radiance values per lane: 1 (unbounded depth), else the bounce orders a path of
@@ -265,18 +280,7 @@ class RayBundleIntegrator(CoreIntegrator):
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
         checks.check_scene(scene, self.delta_surfaces)
-
-    def _check_emitters(self, scene):
-        """Without first_shot the bundles carry the emission of surfaces and of the
-        environment: a delta light (point, spot, directional) cannot be carried."""
-        if self.first_shot:
-            return
-        for emitter in scene.emitters():
-            if int(emitter.flags()) & int(mi.EmitterFlags.Delta):
-                raise ValueError("ray_bundle: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
-                                 "with first_shot=false; use first_shot=true (its next-event estimation lights "
-                                 "the patches and the visible points with delta lights)"
-                                 % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
+        checks.check_emitters(scene, self.first_shot)
 
     def render_frame(self, frame):
         # no garbage collection during a render: a Mitsuba object of an earlier scene freed
@@ -286,7 +290,7 @@ class RayBundleIntegrator(CoreIntegrator):
         try:
             self._render_frame(frame)
         except frozen.FreezeFailed:
-            self._unfrozen.add(self._last_key)    # this scene and these settings: plain steps
+            self.step_cache.failed()      # this scene and these settings: plain steps
             frame.rollback()
             self._render_frame(frame)
         finally:
@@ -294,7 +298,6 @@ class RayBundleIntegrator(CoreIntegrator):
                 gc.enable()
 
     def _render_frame(self, frame):
-        self._check_emitters(frame.scene)
         run = Run(self, frame, available_memory(), DEFAULT_CHAINS)
         split = self.split
         if run.gather_only:          # a distributed render's gathering task: the averages are given

@@ -73,7 +73,7 @@ class Run:
             limits.check(layout, integ.resolution, per_chain, self.group, available)
         self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0)
         self.estimator = ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters, integ.max_depth)
-        self.estimator.group = self.group
+        self.estimator.group = integ.camera_group = self.group
         self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
                         if integ.average_diffuse else None)
         self.total, self.burn_in = integ.counts(spp)
@@ -98,8 +98,8 @@ class Run:
         self.key = self._key(integ, frame, table)
         # the camera sampler is used inside a step only by the hand-off of delta lobes
         self.uses_sampler = self.estimator.handoff.needed
-        self.advance, self.image = integ.frozen_steps(self.key, freezable(scene, frame.sensor)
-                                                      or not self.uses_sampler)
+        self.advance, self.image = integ.step_cache.get(self.key, freezable(scene, frame.sensor)
+                                                        or not self.uses_sampler)
         # the steps' inputs as every step leaves them (evaluated, literals made opaque, e.g. in
         # the scene's plugins): a step whose first call saw them otherwise records twice
         FrozenStep("_nothing", self.advance.frozen is not None)(self)

@@ -61,6 +61,8 @@ INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE)}
 def expected(row, integrator):
     """PASS, a :class:`Refused` or a :class:`NotApplicable` for the cell."""
     spec = INTEGRATORS[integrator]
+    if row.na is not None:             # no cell of the row can be built here (the row's reason)
+        return NotApplicable(row.na)
     if row.key in spec.na:
         return NotApplicable(spec.na[row.key])
     if row.key in spec.refused:
