@@ -13,9 +13,11 @@ import pytest
 from mi_plugins import analytic
 
 CONFIGS = {
-    "ray_bundle": {"type": "ray_bundle", "chains": 8, "iterations": 10, "burn_in": 3},
+    # adaptive=false: the steps of the planned render only (a burn-in of 3 leaves the furnace's average
+    # 1-2 % low, which the adaptive burn-in would extend, moving the final gathering's first steps)
+    "ray_bundle": {"type": "ray_bundle", "chains": 8, "iterations": 10, "burn_in": 3, "adaptive": False},
     "ray_bundle+paper": {"type": "ray_bundle", "chains": 8, "iterations": 10, "burn_in": 3, "first_shot": False,
-                         "average_diffuse": False},
+                         "average_diffuse": False, "adaptive": False},
     "stochastic_ray": {"type": "stochastic_ray", "iterations": 10, "burn_in": 3},
 }
 

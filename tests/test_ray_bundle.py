@@ -573,7 +573,7 @@ def test_average_diffuse_progress_counts_the_final_gathering():
     that keeps asking to stop cuts them to one. The image is exact in the furnace
     either way (to the noise of a few iterations)."""
     scene = analytic.furnace(0.5, 0.5, "box", resolution=RES).scene(
-        dict(PAPER, iterations=10, burn_in=2, average_diffuse=True, chains=4))
+        dict(PAPER, iterations=10, burn_in=2, average_diffuse=True, chains=4, adaptive=False))
     integ = scene.integrator()
     assert integ.iteration_count(1) == 10 + 8 and integ.iteration_count(2) == 20 + 18
     seen = []

@@ -208,8 +208,8 @@ class Run:
                 new, incoming = self.advance(self, state, chain_directions(directions.next()), averaged, index)
                 if averaged and self.image_iterations:
                     self.image_pass(state, incoming, "chain", m, "iterations")
+                    self.frame.commit()        # (the blocks change only here: no copy otherwise)
                 state = new
-                self.frame.commit()
         except KeyboardInterrupt:
             steps.stop()               # Ctrl-C: keep the finished iterations
             self.frame.rollback()
