@@ -351,7 +351,10 @@ FIRST_SHOT_CASES = [
     ("diffuse_sphere_mesh", rb(16, resolution=32), 16, RES),
     ("constant_brdf_phong_box", rb(32, burn_in=16), 16, 8),
     ("sierpinski_diffuse_simulated", rb(16), 16, RES),
-    ("constant_lightsource_box", rb(64, averaged=16, burn_in=24), 32, 8),
+    # the directional emitters' direct light varies along the box's two-triangle walls while the
+    # radiance (L~) is constant: the patch values are exact, a point's direct light plus its
+    # patch's reflected part is not (-2 %, z -12 with point sources)
+    ("constant_lightsource_box", rb(64, averaged=16, burn_in=24, point_sources=False), 32, 8),
 ]
 
 
@@ -364,8 +367,9 @@ def test_first_shot_analytic_cases(name, cfg, runs, res):
 @budget.ratio_statistic("ray_bundle.rmse_ratio_first_shot")
 def rmse_ratio_first_shot(block):
     """Same iterations, furnace sphere mesh (4 chains, 4 seeds): RMSE without over with
-    the first shot."""
-    cfg = rb(4, averaged=32)
+    the first shot (its shared running mean: point_sources=false; a light sample per line
+    hit is as noisy as the bundles' own estimate, ratio 0.99)."""
+    cfg = rb(4, averaged=32, point_sources=False)
     seeds = [budget.block_seed(block, j) for j in range(4)]
     plain = furnace_rmse(cfg, seeds, RES, "sphere_mesh")
     shot = furnace_rmse(dict(cfg, first_shot=True), seeds, RES, "sphere_mesh")
@@ -384,11 +388,15 @@ def test_first_shot_that_counts_emission_twice_fails(monkeypatch):
     """Test of the test: a first shot that keeps the emission in the transported
     radiance (Le counted by the bundles and by the light sample) must fail the check."""
     from mi_plugins.integrators.ray_bundle.transfer import Transport
-    source = Transport.source
+    source, point_source = Transport.source, Transport.point_source
 
     def doubled(self, si, tri):
         return source(self, si, tri) + mi.Color3f(si.emitter(self.scene).eval(si))
+
+    def doubled_point(self, si, active, rng):
+        return point_source(self, si, active, rng) + mi.Color3f(si.emitter(self.scene, active).eval(si, active))
     monkeypatch.setattr(Transport, "source", doubled)
+    monkeypatch.setattr(Transport, "point_source", doubled_point)
     res = check("furnace_box", rb(32, first_shot=True))
     assert not res.passed and abs(res.z) > 8, res
 
@@ -407,7 +415,7 @@ def test_diffuse_patches_share_one_direct_light_estimate(monkeypatch):
         calls.append((dr.width(self.state.sum), self.table.count))
         update(self)
     monkeypatch.setattr(direct.SharedDirect, "update", counted)
-    cfg = rb(32, first_shot=True)
+    cfg = rb(32, first_shot=True, point_sources=False, adaptive=False)
     assert check("furnace_box", cfg).passed
     assert calls and all(width == count for width, count in calls)
     per_render = cfg["iterations"] + 1
@@ -559,7 +567,7 @@ def test_gather_nee_splits_a_patch_constant_radiance():
     -6.6 with 16 runs, the chains sharing each diffuse patch's direct light); gather_nee=false
     averages the constant sum and passes."""
     case = analytic.cases()["bekaert_box"](resolution=8)
-    cfg = rb(32, averaged=16, burn_in=16, first_shot=True, average_diffuse=True)
+    cfg = rb(32, averaged=16, burn_in=16, first_shot=True, average_diffuse=True, point_sources=False)
     split = analytic.check(case, cfg, spp=1, runs=32, seed=1)
     whole = analytic.check(case, dict(cfg, gather_nee=False), spp=1, runs=16, seed=1)
     assert not split.passed and split.z < -5, split

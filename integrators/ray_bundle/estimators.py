@@ -67,7 +67,8 @@ class ChainSources:
         use = self._use(tri, active)
         slot = self.layout.slot_of(tri, chain, side)
         own = use if hi is None else use & (hi >= 0)
-        orders = transport.carried(state, slot, transport.point_source(src, own, rng), use)
+        point = transport.point_source(src, own, rng) if transport.point_sources else None
+        orders = transport.carried(state, slot, point, use)
         return orders_upto(orders, hi, use, lambda v, ok: v)
 
     def visible(self, transport, si, tri, chain, d, incoming, active, hi):

@@ -87,14 +87,11 @@ class RayBundleIntegrator(CoreIntegrator):
      * - first_shot
        - bool
        - true
-       - direct light by next-event estimation: one light sample and one BSDF sample
-         (MIS) per patch point and per camera sample; the bundles then carry only the
-         reflected radiance L - Le. A purely diffuse patch reflects its direct light the
-         same way in every direction: all chains share one running mean per patch side
-         (one estimate per iteration), so the shadow rays are O(patches), not O(chains x
-         patches). Unbiased like the paper's transport, and far less noisy where direct
-         light dominates (small lights: 4-7x lower RMSE at equal time in the benchmark's
-         room). false is the paper's algorithm
+       - direct light by next-event estimation (one light and one BSDF sample, MIS) at
+         patch points, line hits (``point_sources``) and camera samples; the bundles
+         carry only the reflected radiance L - Le; purely diffuse patches share one
+         running mean per side across the chains. Unbiased; far less noisy where direct
+         light dominates. false is the paper's algorithm
      * - estimate
        - string
        - ``'gather'``
@@ -112,33 +109,23 @@ class RayBundleIntegrator(CoreIntegrator):
        - bool
        - true with ``'independent'``
        - every iteration the chains' directions form one evenly spread set (spherical
-         Fibonacci, over the hemisphere when ``bidirectional``), freshly randomly
-         rotated and dealt to the chains in a fresh random order: each chain's
-         directions stay independent and uniform (unbiased), while the chain average has
-         less noise (RMSE halved in the furnace sphere mesh at 64 chains). ``false``:
-         independent chains. No effect with one chain; ``true`` with another
+         Fibonacci), freshly rotated and dealt in a fresh random order: each chain stays
+         independent and uniform, the chain average has less noise. ``true`` with another
          ``direction_sequence`` is an error
      * - average_diffuse
        - bool
        - true
-       - final gathering from averaged diffuse patches: a purely diffuse patch reflects
-         the same radiance in every direction, so all chains' values in all averaged
-         iterations estimate one number; their per-triangle average (O(triangles)
-         memory) replaces the chain's value in the image, which is made after the
-         iterations (one pass per averaged iteration; with ``first_shot`` the gathered
-         point's own direct light by next-event estimation, never patch-averaged).
-         Unbiased like the chains' own values; far less noise. Non-diffuse patches keep the
-         per-chain estimate. false is the paper's algorithm
+       - final gathering from averaged diffuse patches: all chains' values of a purely
+         diffuse patch in all averaged iterations estimate one number; their per-patch
+         average replaces the chain's value in the image, made after the iterations (one
+         pass per averaged iteration). Unbiased; far less noise. false is the paper's
      * - gather_nee
        - bool
        - true
        - with ``first_shot`` and ``average_diffuse``: the direct light of each gathered
-         point by next-event estimation (exact where it varies within a patch, e.g. near
-         lights; 4 more rays per camera sample). false: the direct light is part of the
-         patch average (no extra rays). true is exact where the reflected radiance minus
-         the direct light is constant per patch; where only their sum is (analytic
-         scenes whose neighbouring patches emit differently, e.g. the Bekaert box: 0.6 %
-         low) use false
+         point by next-event estimation (exact where it varies within a patch). false:
+         part of the patch average, exact where only the whole radiance is constant per
+         patch (the Bekaert box: 0.6 % low with true)
      * - patch_size
        - float
        - scene diagonal / 24, at least 2 x the line spacing
@@ -168,6 +155,16 @@ class RayBundleIntegrator(CoreIntegrator):
        - ``'refuse'``: a purely specular surface (``conductor``, ``dielectric``) is
          refused (the bundles cannot pass light on through it); ``'camera_only'``: render
          anyway, the camera seeing through it, with a RuntimeWarning naming the shapes
+     * - point_sources
+       - bool
+       - true
+       - the source term a line carries (the direct light with ``first_shot``, else the
+         emission) evaluated where the line leaves the surface (one light and one BSDF
+         sample per hit): exact where it varies within a patch (shadows, a lamp 1 cm
+         under a ceiling: +92 % with false; spots on large planes: -4 %). false: the
+         patch's value, the shared running mean of its direct light: far less noise
+         (RMSE halved in the furnace sphere mesh), exact only where the radiance is
+         constant per patch (the analytic constant-radiance scenes)
      * - adaptive
        - bool
        - true
@@ -242,6 +239,7 @@ class RayBundleIntegrator(CoreIntegrator):
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
+        self.point_sources = p.bool("point_sources", True)
         self.split = None      # a distributed render's task (see split.py); None: a whole render
         self.step_cache = frozen.StepCache(FROZEN_CACHE)      # the frozen steps of the last renders
 

@@ -71,7 +71,8 @@ class Run:
                                           limits.camera_group(chains, per_chain, available))
         if not self.gather_only:
             limits.check(layout, integ.resolution, per_chain, self.group, available)
-        self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0)
+        self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
+                                   integ.point_sources)
         self.estimator = ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters, integ.max_depth)
         self.estimator.group = integ.camera_group = self.group
         self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
@@ -112,7 +113,8 @@ class Run:
                 t.finite, t.environment is not None, t.direct.covers_all if t.direct else None,
                 t.direct.any if t.direct else None, avg is not None and (avg.covers_all, avg.estimate),
                 self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
-                integ.estimate, self.estimator.handoff.needed, int(film.flags()), frame.width, frame.height,
+                integ.estimate, integ.point_sources, self.estimator.handoff.needed, int(film.flags()), frame.width,
+                frame.height,
                 tuple(sorted(frame._blocks)), self.image_iterations)
 
     def __hash__(self):

@@ -113,9 +113,9 @@ class Transport:
     """The transfer and reflection steps of all chains of one render. ``finite``: the
     orders are bounce orders (a finite depth), else one unbounded value per lane."""
 
-    def __init__(self, scene, layout, resolution, first_shot, seed, finite=False):
+    def __init__(self, scene, layout, resolution, first_shot, seed, finite=False, point_sources=True):
         self.scene, self.layout, self.resolution, self.first_shot = scene, layout, int(resolution), first_shot
-        self.finite = bool(finite)
+        self.finite, self.point_sources = bool(finite), bool(point_sources)
         self.center, self.radius = bounding_sphere(scene, layout.table)
         self.lines = self.resolution ** 2 * layout.chains
         self.streams = Streams(seeds.pcg(self.lines, seed, "lines"), seeds.pcg(layout.lanes, seed, "patches"))
@@ -210,7 +210,7 @@ class Transport:
             for inc, value in zip(incoming, self.carried(state, prev, prev_src, exchange)):
                 dr.scatter_add(inc, value * area, slot, exchange, mode=SPLAT_MODE)
             if back:                   # the receiving side sends back along -d (si.wi is -d)
-                own = self.point_source(si, exchange, rng)
+                own = self.point_source(si, exchange, rng) if self.point_sources else None
                 for inc, value in zip(incoming, self.carried(state, slot + back, own, exchange)):
                     dr.scatter_add(inc, value * area, prev + back, exchange, mode=SPLAT_MODE)
             if self.environment is not None:     # the first surface on a line sees the sky behind it
@@ -221,7 +221,8 @@ class Transport:
                     dr.scatter_add(incoming[0], sky_ahead * area, prev + back, lit, mode=SPLAT_MODE)
             ahead = mi.SurfaceInteraction3f(si)
             ahead.wi = si.to_local(d)
-            src = dr.select(hit & sends, self.point_source(ahead, hit & sends, rng), prev_src)
+            src = (dr.select(hit & sends, self.point_source(ahead, hit & sends, rng), prev_src)
+                   if self.point_sources else prev_src)
             beyond = si.p + si.n * dr.mulsign(LINE_EPSILON * scale, dr.dot(si.n, d))
             return (mi.Ray3f(beyond, d), found, dr.select(hit, layout.slot_of(sender, chain), prev),
                     dr.select(hit, hit & sends, prev_fwd), src, first & ~hit, shape, mi.UInt32(pi.prim_index), rng)
@@ -245,7 +246,9 @@ class Transport:
         leaves, not averaged over the patch: the direct light can change by orders of
         magnitude within a patch (a lamp 1 cm under a ceiling, a spot's cone on a large
         plane), and a line leaving the dark part of a patch must not carry the bright
-        part's light (+92 % in the first case, -4 % in the second)."""
+        part's light (+92 % in the first case, -4 % in the second). ``point_sources=false``
+        keeps the patch's running mean instead: less noise, exact where the whole radiance
+        is constant per patch (the analytic constant-radiance scenes)."""
         if not self.first_shot:
             return dr.select(active, mi.Color3f(si.emitter(self.scene, active).eval(si, active)), 0.0)
         return direct_light_mis(self.scene, si, si.bsdf(), rng, active)
@@ -253,7 +256,10 @@ class Transport:
     def carried(self, state, slot, src, active):
         """The radiance a patch side sends, per order: the bundles' part (R, or the orders
         k >= 1) from the patch's values at ``slot``, the source part ``src`` evaluated at
-        the point (order 0)."""
+        the point (order 0); without ``point_sources`` the patch's values alone (the
+        source part its running mean over the patch)."""
+        if not self.point_sources:
+            return [dr.gather(mi.Color3f, L, slot, active) for L in state.L]
         if not self.finite:
             return [dr.gather(mi.Color3f, state.R, slot, active) + src]
         return [src] + [dr.gather(mi.Color3f, L, slot, active) for L in state.L[1:]]
