@@ -1017,3 +1017,20 @@ def test_albedo_one_room_at_the_defaults_extends_its_burn_in():
     with pytest.warns(RuntimeWarning, match=r"not converged after a burn-in of 8 iterations: .* about \d+(\.\d+)? % "
                                             r"too low"):
         mi.render(scene, spp=1, seed=budget.seed(40))
+
+
+def test_the_default_patch_size_sees_merged_meshes():
+    """mi.load_dict merges shapes that share a BSDF into one Mesh whose bbox() is invalid
+    and that scene.bbox() leaves out: the open many-emitter scene's two 80 x 80 planes
+    vanished from it, the default patch size came out 7x too small and the planes split
+    into 16384 patches (the table 16731). The scene's bounds now come from its shapes."""
+    from mi_plugins.coverage import rows
+    from mi_plugins.integrators.ray_bundle.limits import predicted_patches
+    from mi_plugins.meshtable import scene_bounds
+    scene = mi.load_dict(rows.open_many_emitters(8))
+    lo, hi = scene_bounds(scene)
+    assert np.allclose(lo, -40) and np.allclose(hi, 40), (lo, hi)
+    assert float(dr.norm(scene.bbox().extents())) < 40          # Mitsuba's box misses the planes
+    integ = mi.load_dict({"type": "ray_bundle"})
+    patches = predicted_patches(scene, integ.patch_size_for(scene), True)
+    assert 300 < patches < 2000, patches
