@@ -197,9 +197,12 @@ def count_rays(case, method, budgets):
                 "instrumented, 1 spp x %d steps, x spp; %.2f rays per chain step"
                 % (integ.iterations, rc.total / (dr.prod(scene.sensors()[0].film().crop_size()) * integ.iterations)))
     # ray_bundle: rays per burn-in iteration and per averaged iteration, from the progress hook
-    marks = []
+    # (its steps not frozen: a replayed step would not call the counting hooks)
+    from mi_plugins.integrators.ray_bundle import frozen
+    marks, was = [], frozen.ENABLED
     integ.progress_callback = lambda done, total: marks.append(rc.total)
     integ.iterations, total = integ.burn_in + 4, integ.burn_in + 4
+    frozen.ENABLED = False
     try:
         with RayCounter() as rc, warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -207,6 +210,7 @@ def count_rays(case, method, budgets):
             prelim = rc.counts["ray_intersect_preliminary"]
     finally:
         integ.progress_callback = None
+        frozen.ENABLED = was
     marks = [0] + marks
     burn = (marks[integ.burn_in] - marks[0]) / max(integ.burn_in, 1)
     # (with average_diffuse the final gathering's passes, one per averaged iteration, come last)

@@ -41,9 +41,10 @@ class CameraPass:
         time = sensor.shutter_open()
         if sensor.shutter_open_time() > 0:
             time += sampler.next_1d() * sensor.shutter_open_time()
-        # sample_ray_differential: every sensor has it (irradiancemeter has no sample_ray)
+        # the differential variant: 'irradiancemeter' and 'batch' implement only that one
+        # (Mitsuba 3.9.1: their sample_ray raises "not implemented"), as Mitsuba's path calls
         ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, offset), aperture)
-        self.ray = mi.Ray3f(ray.o, ray.d, ray.time, ray.wavelengths)
+        self.ray = mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths)
         self.weight = mi.Color3f(weight)
         # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
         self.pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f

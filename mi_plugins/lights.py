@@ -10,6 +10,18 @@ across the scene's bounding sphere perpendicular to it. The latter replaces Mits
 """
 import drjit as dr
 import mitsuba as mi
+import numpy as np
+
+from mi_plugins.meshtable import scene_bounds
+
+
+def bounding_sphere(scene):
+    """(centre, radius) of a sphere around every shape of ``scene``, slightly enlarged
+    (from :func:`mi_plugins.meshtable.scene_bounds`: ``scene.bbox()`` misses the meshes
+    Mitsuba merges)."""
+    lo, hi = scene_bounds(scene)
+    center = 0.5 * (lo + hi)
+    return mi.Point3f(*center), float(np.linalg.norm(hi - lo)) * 0.5 * 1.001 + 1e-4
 
 
 def has_infinite(scene):
@@ -25,8 +37,8 @@ def sample_light_rays(scene, u_emitter, u_position, u_direction, active=True):
     position = mi.Point2f(u_reused, u_position.y)
     ray, power = emitter.sample_ray(0.0, 0.5, position, u_direction, active)
     if has_infinite(scene):
-        sphere, it = scene.bbox().bounding_sphere(), dr.zeros(mi.Interaction3f)
-        center, r = mi.Point3f(sphere.center), sphere.radius * 1.001 + 1e-4
+        center, r = bounding_sphere(scene)
+        it = dr.zeros(mi.Interaction3f)
         it.p = center
         infinite = active & mi.has_flag(emitter.flags(), mi.EmitterFlags.Infinite)
         ds, radiance = emitter.sample_direction(it, u_direction, infinite)

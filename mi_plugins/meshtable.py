@@ -272,8 +272,35 @@ def patch_parameters(p):
 
 
 def default_patch_size(scene):
-    """The scene's bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL."""
-    return float(dr.norm(scene.bbox().extents())) / tessellation.CELLS_PER_DIAGONAL
+    """The scene's bounding-box diagonal (:func:`scene_bounds`) / tessellation.CELLS_PER_DIAGONAL."""
+    lo, hi = scene_bounds(scene)
+    return float(np.linalg.norm(hi - lo)) / tessellation.CELLS_PER_DIAGONAL
+
+
+def scene_bounds(scene):
+    """(min, max) corners (numpy float64) of the box around every shape of ``scene``.
+
+    Not ``scene.bbox()``: ``mi.load_dict`` (optimize=True) merges shapes that share a BSDF
+    into one ``Mesh`` whose ``bbox()`` is invalid, and ``scene.bbox()`` leaves it out
+    (Mitsuba 3.9.1: two 80 x 80 ``rectangle`` planes with one BSDF vanish from it), so a
+    size derived from it can be 5x too small. A mesh with an invalid box is bounded by
+    its vertices."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for shape in scene.shapes():
+        box = shape.bbox()
+        if box.valid():
+            points = np.array([box.min, box.max], dtype=np.float64)
+        elif _is_mesh(shape):
+            points = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+        else:
+            continue
+        if len(points):
+            lo, hi = np.minimum(lo, points.min(axis=0)), np.maximum(hi, points.max(axis=0))
+    if not np.all(np.isfinite(lo)):
+        box = scene.bbox()
+        lo, hi = ((np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)) if box.valid()
+                  else (np.zeros(3), np.zeros(3)))
+    return lo, hi
 
 
 def split_levels(p, h):

@@ -44,7 +44,7 @@ def hashed_rng(si, salt):
     return mi.PCG32(dr.width(state), state, seq)
 
 
-def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None):
+def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=None):
     """Direct illumination reflected at ``si`` toward ``si.wi`` (next-event estimation).
 
     Without ``bsdf_sample``: one emitter sample (``scene.sample_emitter_direction``,
@@ -52,8 +52,9 @@ def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None):
     light sample plus one BSDF sample whose ray is traced to the emission it hits,
     combined by multiple importance sampling (power heuristic), which keeps the
     variance bounded where emitters are large and close (furnaces, corners). Zero where
-    ``active`` is false."""
-    ctx = mi.BSDFContext()
+    ``active`` is false. ``ctx``: the BSDF context (default: every lobe; e.g. only the
+    smooth lobes where the delta lobes are estimated otherwise)."""
+    ctx = mi.BSDFContext() if ctx is None else ctx
     ds, em_weight = scene.sample_emitter_direction(si, light_sample, True, active)
     active_l = active & (ds.pdf > 0)
     if bsdf_sample is None:
@@ -117,6 +118,10 @@ class IsotropicLobe:
     sin(theta) is tabulated on ``resolution`` bins over [0, pi/2] and sampled with a
     piecewise-linear ``mi.ContinuousDistribution``; phi is uniform. :meth:`sample` and
     :meth:`pdf` return the solid-angle density actually sampled (exactly consistent)."""
+
+    #: traversable by Dr.Jit: a frozen function (dr.freeze) that samples a plugin holding
+    #: a lobe finds the distribution's arrays among its inputs
+    DRJIT_STRUCT = {"distribution": mi.ContinuousDistribution}
 
     def __init__(self, weight, resolution=2048):
         import numpy as np

@@ -127,6 +127,10 @@ TABLE = {
         "patch_size": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
         "subdivide": BOOL(),
         "hide_emitters": BOOL(),
+        "max_depth": INT(-1, good=[-1, 0, 5]),
+        "delta_surfaces": CHOICE(("refuse", "camera_only")),
+        "adaptive": BOOL(),
+        "point_sources": BOOL(),
     },
     "phong": {
         "diffuse_reflectance": TEXTURE(GOOD_TEXTURES + [0.8], extra_bad=[0.9]),       # 0.9 + ks 0.2 > 1

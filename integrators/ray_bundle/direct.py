@@ -11,6 +11,8 @@ independent of the bundles' random directions and lines that transport it. Patch
 other BSDFs keep a per-lane estimate (their reflected direct light depends on the
 direction).
 """
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -30,11 +32,20 @@ def purely_diffuse(table):
     return np.array([diffuse_only(shape) for shape in table.meshes], dtype=bool)[table.shape_index_np]
 
 
-def direct_light_mis(scene, si, bsdf, rng, active):
-    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS."""
+def direct_light_mis(scene, si, bsdf, rng, active, ctx=None):
+    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS
+    (``ctx``: the lobes to cover, default all)."""
     light_sample = mi.Point2f(rng.next_float32(), rng.next_float32())
     bsdf_sample = (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()))
-    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample)
+    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample, ctx)
+
+
+@dataclass
+class DirectState:
+    """The running sums of :class:`SharedDirect` and its random stream."""
+    sum: mi.Color3f       # sum of the iterations' estimates, per patch side
+    count: mi.Float       # iterations estimated (one opaque value)
+    rng: mi.PCG32
 
 
 class SharedDirect:
@@ -45,28 +56,26 @@ class SharedDirect:
         diffuse = purely_diffuse(table)
         self.covers_all, self.any = bool(np.all(diffuse)), bool(np.any(diffuse))
         self.mask = mi.Bool(diffuse)
-        self.rng = seeds.pcg(table.count, seed, "direct")
-        self.sum = dr.zeros(mi.Color3f, table.count)   # sum of the iterations' estimates
-        self.count = mi.Float(0.0)                     # iterations estimated (opaque: one kernel)
-        dr.make_opaque(self.count)
-
-    def state(self):
-        return self.sum, self.count, self.rng.state
+        self.state = DirectState(dr.zeros(mi.Color3f, table.count), dr.opaque(mi.Float, 0.0),
+                                 seeds.pcg(table.count, seed, "direct"))
+        dr.make_opaque(self.state.sum)
 
     def update(self):
-        """One more estimate per diffuse patch side (seen from its own side's normal)."""
+        """One more estimate per diffuse patch side (seen from its own side's normal),
+        evaluated at once (one kernel: the chains gather from the sums)."""
         if not self.any:
             return
-        table = self.table
+        table, st = self.table, self.state
         tri = dr.arange(mi.UInt32, table.count)
-        sample = mi.Point2f(self.rng.next_float32(), self.rng.next_float32())
+        sample = mi.Point2f(st.rng.next_float32(), st.rng.next_float32())
         si = table.surface_interaction(tri, sample, table.normal)
-        self.sum += direct_light_mis(self.scene, si, si.bsdf(), self.rng, self.mask)
-        self.count += 1.0
+        st.sum = st.sum + direct_light_mis(self.scene, si, si.bsdf(), st.rng, self.mask)
+        st.count = st.count + 1.0
+        dr.eval(st.sum, st.count, st.rng)
 
     def mean(self, tri, active=True):
         """The running mean of patch ``tri`` (zero where it is not purely diffuse)."""
-        return dr.gather(mi.Color3f, self.sum, tri, active) / dr.maximum(self.count, 1.0)
+        return dr.gather(mi.Color3f, self.state.sum, tri, active) / dr.maximum(self.state.count, 1.0)
 
     def is_shared(self, tri):
         return dr.gather(mi.Bool, self.mask, tri)

@@ -1,20 +1,24 @@
 """The ``ray_bundle`` integrator: parameters and the iteration loop."""
-import warnings
+import gc
 
-import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from mi_plugins import seeds
 from mi_plugins.integrators.core import CoreIntegrator
-from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
-from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, chain_directions, global_directions
-from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources, final_gathering
-from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport, available_memory
-from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
+from mi_plugins.integrators.ray_bundle import checks
+from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
+from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
+from mi_plugins.integrators.ray_bundle import frozen
+from mi_plugins.integrators.ray_bundle.limits import available_memory
+from mi_plugins.integrators.ray_bundle.run import Run, touch
+from mi_plugins.meshtable import default_patch_size, patch_parameters, scene_bounds
 from mi_plugins.params import Params
 
 #: the chains of the default (fewer where they would need over a quarter of the memory)
 DEFAULT_CHAINS = 64
+#: renders whose frozen steps an integrator keeps (one per scene and settings)
+FROZEN_CACHE = 4
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
@@ -28,24 +32,29 @@ class RayBundleIntegrator(CoreIntegrator):
     ---------------------------------------------------------
 
     Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the patches of
-    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the current global
-    direction w_m (and -w_m when ``bidirectional``). Each iteration transfers all patch
-    radiances along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines
-    across the scene's bounding sphere (jittered every iteration; every line walks ALL its
-    successive hits, continuing 1e-6 x the scene's scale beyond each, so that a lamp 0.1 mm
-    under a ceiling is not skipped, and consecutive hits facing each other exchange radiance), picks a
-    new random direction w_{m+1} and reflects:
-    L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j A(i,j,w_m) / A_i L[j]
-    (2 pi per direction when bidirectional). Emission and BSDF are evaluated at a fresh
-    uniformly random point of each patch every iteration (unbiased patch averages:
-    textured emission and albedo work). Memory: O(chains x (patches + resolution^2)), no
-    per-pair storage: about 93-116 bytes per chain and patch side (64 chains on 70 k triangles:
-    0.8 GB); a render needing more than the available memory is refused, naming the chains
-    that fit (a warning above a quarter of it).
+    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the
+    current global direction w_m (and -w_m when ``bidirectional``). Each iteration
+    transfers all patch radiances along w_m with a bundle of ``resolution`` x
+    ``resolution`` parallel lines across the scene's bounding sphere (jittered every
+    iteration; every line walks ALL its successive hits, continuing 1e-6 x the scene's
+    scale beyond each, so that a lamp 0.1 mm under a ceiling is not skipped, and
+    consecutive hits facing each other exchange radiance), picks a new random direction
+    w_{m+1} and reflects: L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j
+    A(i,j,w_m) / A_i L[j] (2 pi per direction when bidirectional). The source term (the
+    emission, or with ``first_shot`` the direct light) is evaluated where a line leaves
+    a surface, the carried part per patch at a fresh uniformly random point of each patch
+    every iteration (unbiased patch averages: textured emission and albedo work). Every
+    kind of iteration and camera pass is traced once and replayed (``dr.freeze``; a later
+    render of the same scene and settings replays too). Memory: O(chains x (patches +
+    resolution^2)), no per-pair storage; every size is checked before any work against
+    the available memory and documented maxima (``limits.py``: at most 2^20 iterations
+    per render, 2^31 lanes, lines and camera samples per pass; a camera pass takes as
+    many chains as fit), with a clear error naming what fits.
 
     **Defaults** are the settings that measure best at equal time on the Cornell box and
     the closed diffuse scenes (``docs/real_scenes.md``): 64 chains of 32 x 32 lines,
-    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``.
+    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``, the burn-in
+    extended where the chains still converge (``adaptive``).
     **Paper settings** (sections 5-6, the figure-7 reproduction): ``chains`` 1,
     ``resolution`` 128, ``iterations`` 64, ``first_shot`` false, ``average_diffuse`` false
     (``PAPER_SETTINGS`` in this module).
@@ -78,14 +87,11 @@ class RayBundleIntegrator(CoreIntegrator):
      * - first_shot
        - bool
        - true
-       - direct light by next-event estimation: one light sample and one BSDF sample
-         (MIS) per patch point and per camera sample; the bundles then carry only the
-         reflected radiance L - Le. A purely diffuse patch reflects its direct light the
-         same way in every direction: all chains share one running mean per patch side
-         (one estimate per iteration), so the shadow rays are O(patches), not O(chains x
-         patches). Unbiased like the paper's transport, and far less noisy where direct
-         light dominates (small lights: 4-7x lower RMSE at equal time in the benchmark's
-         room). false is the paper's algorithm
+       - direct light by next-event estimation (one light and one BSDF sample, MIS) at
+         patch points, line hits (``point_sources``) and camera samples; the bundles
+         carry only the reflected radiance L - Le; purely diffuse patches share one
+         running mean per side across the chains. Unbiased; far less noisy where direct
+         light dominates. false is the paper's algorithm
      * - estimate
        - string
        - ``'gather'``
@@ -103,33 +109,23 @@ class RayBundleIntegrator(CoreIntegrator):
        - bool
        - true with ``'independent'``
        - every iteration the chains' directions form one evenly spread set (spherical
-         Fibonacci, over the hemisphere when ``bidirectional``), freshly randomly
-         rotated and dealt to the chains in a fresh random order: each chain's
-         directions stay independent and uniform (unbiased), while the chain average has
-         less noise (RMSE halved in the furnace sphere mesh at 64 chains). ``false``:
-         independent chains. No effect with one chain; ``true`` with another
+         Fibonacci), freshly rotated and dealt in a fresh random order: each chain stays
+         independent and uniform, the chain average has less noise. ``true`` with another
          ``direction_sequence`` is an error
      * - average_diffuse
        - bool
        - true
-       - final gathering from averaged diffuse patches: a purely diffuse patch reflects
-         the same radiance in every direction, so all chains' values in all averaged
-         iterations estimate one number; their per-triangle average (O(triangles)
-         memory) replaces the chain's value in the image, which is made after the
-         iterations (one pass per averaged iteration; with ``first_shot`` the gathered
-         point's own direct light by next-event estimation, never patch-averaged).
-         Unbiased like the chains' own values; far less noise. Non-diffuse patches keep the
-         per-chain estimate. false is the paper's algorithm
+       - final gathering from averaged diffuse patches: all chains' values of a purely
+         diffuse patch in all averaged iterations estimate one number; their per-patch
+         average replaces the chain's value in the image, made after the iterations (one
+         pass per averaged iteration). Unbiased; far less noise. false is the paper's
      * - gather_nee
        - bool
        - true
        - with ``first_shot`` and ``average_diffuse``: the direct light of each gathered
-         point by next-event estimation (exact where it varies within a patch, e.g. near
-         lights; 4 more rays per camera sample). false: the direct light is part of the
-         patch average (no extra rays). true is exact where the reflected radiance minus
-         the direct light is constant per patch; where only their sum is (analytic
-         scenes whose neighbouring patches emit differently, e.g. the Bekaert box: 0.6 %
-         low) use false
+         point by next-event estimation (exact where it varies within a patch). false:
+         part of the patch average, exact where only the whole radiance is constant per
+         patch (the Bekaert box: 0.6 % low with true)
      * - patch_size
        - float
        - scene diagonal / 24, at least 2 x the line spacing
@@ -147,6 +143,36 @@ class RayBundleIntegrator(CoreIntegrator):
        - bool
        - false
        - do not show directly visible emitters
+     * - max_depth
+       - int
+       - -1
+       - -1 (unbounded) or 0 .. 64, Mitsuba's meaning (1: emission only, 2: direct
+         light); the chains keep every bounce order apart (memory x orders), the burn-in
+         is at least the orders - 1, and the image reads the orders each path may reach
+     * - delta_surfaces
+       - string
+       - ``'refuse'``
+       - ``'refuse'``: a purely specular surface (``conductor``, ``dielectric``) is
+         refused (the bundles cannot pass light on through it); ``'camera_only'``: render
+         anyway, the camera seeing through it, with a RuntimeWarning naming the shapes
+     * - point_sources
+       - bool
+       - true
+       - the source term a line carries (the direct light with ``first_shot``, else the
+         emission) evaluated where the line leaves the surface (one light and one BSDF
+         sample per hit): exact where it varies within a patch (shadows, a lamp 1 cm
+         under a ceiling: +92 % with false; spots on large planes: -4 %). false: the
+         patch's value, the shared running mean of its direct light: far less noise
+         (RMSE halved in the furnace sphere mesh), exact only where the radiance is
+         constant per patch (the analytic constant-radiance scenes)
+     * - adaptive
+       - bool
+       - true
+       - after the averaged iterations, predict the average's bias from the chains (their
+         reflected share of the power gives the contraction ratio; the growth between the
+         halves of the average) and, above 1 %, extend the burn-in by what the prediction
+         asks for, up to 8x the planned iterations; a RuntimeWarning gives the numbers
+         where the cap is reached, or always with false
 
     **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global
     iterations of every chain (``burn_in`` once); every averaged iteration traces one
@@ -157,17 +183,24 @@ class RayBundleIntegrator(CoreIntegrator):
     Camera rays are followed through purely specular surfaces to the first non-delta one.
     **Scenes:** patches are the triangles of meshes (long ones split, see ``patch_size``)
     and cells of the analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along
-    their own uv; other shapes raise ``NonMeshShapeError`` naming the shape.
+    their own uv; other shapes (instances, curves, ellipsoids, SDF grids) are refused.
     Orientation is Mitsuba's (winding, ``flip_normals``): one-sided BSDFs send and receive
     on their front only, two-sided ones (``twosided``) have a patch per side. The
     environment emitter (``constant``, ``envmap``) lights the patches through the bundles
     (with ``first_shot`` by next-event estimation) and is seen by the camera; delta lights
     (``point``, ``spot``, ``directional``) need ``first_shot=true`` (an error says so).
-    Transport *through* delta (mirror/glass) surfaces cannot be captured by random global
-    directions: a ``RuntimeWarning`` names the shapes with delta lobes. The radiance is
-    constant per patch: where the true radiance varies within a patch the result is its
-    patch average (exact in the furnace and constant-radiance cases, and on spheres, whose
-    point-to-patch form factor is the same for every receiving point).
+    **Refused before any work** (``mi_plugins.support.Unsupported``, naming the plugin,
+    the shape, why and what to use instead): participating media; BSDFs with a null lobe
+    (``null``, ``mask``, ``thindielectric``, ``hair``, the polarizers), which the lines
+    cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
+    specular surfaces (see ``delta_surfaces``). The delta lobe of a mixed BSDF (the
+    specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
+    point, and reflects the direct light into the bundles (``first_shot``'s BSDF
+    sample). The radiance carried by the bundles is constant per patch: where it varies
+    within a patch the result is its patch average (exact in the furnace and
+    constant-radiance cases, and on spheres, whose point-to-patch form factor is the same
+    for every receiving point); a smaller ``patch_size`` (or a higher ``resolution``,
+    which sets the default) lowers that bias.
 
     .. code-block:: python
 
@@ -203,14 +236,34 @@ class RayBundleIntegrator(CoreIntegrator):
         self.average_diffuse = p.bool("average_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide = patch_parameters(p)
+        self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
+        self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
+        self.adaptive = p.bool("adaptive", True)
+        self.point_sources = p.bool("point_sources", True)
         self.split = None      # a distributed render's task (see split.py); None: a whole render
+        self.step_cache = frozen.StepCache(FROZEN_CACHE)      # the frozen steps of the last renders
+
+    def orders(self):
+        """Radiance values per lane: 1 (unbounded depth), else the bounce orders a path of
+        ``max_depth`` segments can read from a patch (at least 1)."""
+        if self.max_depth < 0:
+            return 1
+        return max(1, self.max_depth - (2 if self.first_shot else 1))
+
+    def counts(self, spp):
+        """(iterations, burn-in) of a render with ``spp``: ``iterations * spp`` and
+        ``burn_in``, both raised where a finite depth needs a longer burn-in (every order
+        present from the first averaged iteration)."""
+        total, burn_in = self.iterations * int(spp), self.burn_in
+        extra = max(0, self.orders() - 1 - burn_in) if self.max_depth >= 0 else 0
+        return total + extra, burn_in + extra
 
     def iteration_count(self, spp):
         """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
         advances every chain), plus with ``average_diffuse`` the final gathering's passes
-        (one per averaged iteration)."""
-        total = self.iterations * int(spp)
-        return total + (total - self.burn_in if self.average_diffuse else 0)
+        (one per averaged iteration). An extended burn-in adds steps (see ``adaptive``)."""
+        total, burn_in = self.counts(spp)
+        return total + (total - burn_in if self.average_diffuse else 0)
 
     def patch_size_for(self, scene):
         """``patch_size``, or by default the scene's diagonal / 24, or twice the bundle's
@@ -218,89 +271,54 @@ class RayBundleIntegrator(CoreIntegrator):
         by most bundles: noise only)."""
         if self.patch_size is not None:
             return self.patch_size
-        spacing = 2.0 * scene.bbox().bounding_sphere().radius / self.resolution
+        lo, hi = scene_bounds(scene)
+        spacing = float(np.linalg.norm(hi - lo)) / self.resolution       # 2 x radius / resolution
         return max(default_patch_size(scene), 2.0 * spacing)
 
-    def _warn_delta(self, scene):
-        names = [s.id() for s in scene.shapes()
-                 if s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta)]
-        if names:
-            warnings.warn("ray_bundle: shape(s) %s have delta (mirror/glass) BSDF lobes; light transport "
-                          "through delta surfaces cannot be captured by random global directions, only "
-                          "camera rays are reflected by them. The result is biased where transport depends "
-                          "on them; use stochastic_ray or path for such scenes." % ", ".join(names),
-                          RuntimeWarning, stacklevel=3)
-
-    def _check_emitters(self, scene):
-        """Without first_shot the bundles carry the emission of surfaces and of the
-        environment: a delta light (point, spot, directional) cannot be carried."""
-        if self.first_shot:
-            return
-        for emitter in scene.emitters():
-            if int(emitter.flags()) & int(mi.EmitterFlags.Delta):
-                raise ValueError("ray_bundle: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
-                                 "with first_shot=false; use first_shot=true (its next-event estimation lights "
-                                 "the patches and the visible points with delta lights)"
-                                 % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
+    def check_scene(self, scene, sensor):
+        super().check_scene(scene, sensor)
+        checks.check_scene(scene, self.delta_surfaces)
+        checks.check_emitters(scene, self.first_shot)
 
     def render_frame(self, frame):
-        scene, seed, split = frame.scene, frame.seed, self.split
-        self._check_emitters(scene)
-        table = MeshTable(scene, "ray_bundle", h=self.patch_size_for(scene), back_sides=True, subdivide=self.subdivide)
-        sides, memory = 2 if self.bidirectional else 1, available_memory()
-        chains = (split.chains if split is not None and split.chains else
-                  self.chains or ChainLayout.default_chains(DEFAULT_CHAINS, table, sides, memory))
-        layout = ChainLayout(table, chains, sides)
-        gather_only = split is not None and split.mode == "gather"
-        if not gather_only:
-            layout.check_memory(memory)
-        self._warn_delta(scene)
-        transport = Transport(scene, layout, self.resolution, self.first_shot, seed)
-        estimator = ESTIMATORS[self.estimate](transport, self.hide_emitters, seed)
-        average = DiffuseAverage(layout, self.estimate, transport.weight) if self.average_diffuse else None
-        if gather_only:          # a distributed render's gathering task: the averages are given
-            average.load(*split.average)
-            directions = global_directions(self.direction_sequence, split.passes, chains,
-                                           seeds.numpy_rng(seed, "directions"), self.stratify_chains,
-                                           self.bidirectional)
-            frame.camera_passes(chains, split.passes)
-            steps = self.steps(0, 0, split.passes)
-            return final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
-                                   0, split.passes)
-        total, burn_in = self.iterations * frame.spp, self.burn_in
-        directions = global_directions(self.direction_sequence, total + 1, chains,
-                                       seeds.numpy_rng(seed, "directions"), self.stratify_chains, self.bidirectional)
-        # without averaging, every averaged iteration images everything; with it, the
-        # iterations image only the patches that are not averaged (none to image when all
-        # are) and the final gathering the averaged ones
-        sources = ChainSources(layout, skip=average)
-        image_iterations = average is None or not average.covers_all
-        frame.camera_passes(chains, (total - burn_in) * (int(image_iterations) + int(average is not None)))
-        state = transport.initial(chain_directions(directions[0]))
-        dr.eval(state, transport.state())
-        steps = self.steps(total, burn_in, self.iteration_count(frame.spp))
+        # no garbage collection during a render: a Mitsuba object of an earlier scene freed
+        # between two frozen steps changes the instance registry that the steps recorded
+        collect = gc.isenabled()
+        gc.disable()
         try:
-            for m in steps.iterations():
-                incoming = transport.transfer(state)
-                if m >= burn_in:
-                    if average is not None:
-                        average.add(state.dirs, self._averaged_radiance(state), incoming)
-                    if image_iterations:
-                        estimator.put(frame, frame.camera_pass(), state, incoming, sources, m, "iterations")
-                state = transport.reflect(state, incoming, chain_directions(directions[m + 1]))
-                dr.eval(state, transport.state(), frame.state(), average.state() if average is not None else None)
-                frame.commit()
-        except KeyboardInterrupt:
-            steps.stop()               # Ctrl-C: keep the finished iterations
+            self._render_frame(frame)
+        except frozen.FreezeFailed:
+            self.step_cache.failed()      # this scene and these settings: plain steps
             frame.rollback()
+            self._render_frame(frame)
+        finally:
+            if collect:
+                gc.enable()
+
+    def _render_frame(self, frame):
+        run = Run(self, frame, available_memory(), DEFAULT_CHAINS)
+        split = self.split
+        if run.gather_only:          # a distributed render's gathering task: the averages are given
+            run.average.load(*split.average)
+            run.camera_passes(split.passes)
+            touch(frame.camera_block("final"))
+            run.final_gathering(self.steps(0, 0, split.passes), split.passes)
+            return
+        directions = DirectionStream(self.direction_sequence, run.layout.chains,
+                                     seeds.numpy_rng(frame.seed, "directions"), self.stratify_chains,
+                                     self.bidirectional, run.total + 1)
+        steps = self.steps(run.total, run.burn_in, self.iteration_count(frame.spp))
+        run.run(steps, directions)
         if split is not None:          # a distributed render's chain task: the averages, no image
-            split.result = average.numpy()
-        elif average is not None and self.progress.averaged > 0:
-            final_gathering(frame, estimator, steps, directions, AveragedSources(average, self.gather_nee),
-                            self.burn_in, self.progress.averaged)
+            split.result = run.average.numpy()
+        elif run.average is not None and self.progress.averaged > 0:
+            run.final_gathering(steps, self.progress.averaged)
 
     def _averaged_radiance(self, state):
-        """What the diffuse averages hold: what the gathered point does not add itself (the
-        reflected part R; with first_shot and gather_nee=false all of L but the emission,
-        which then is the direct light)."""
-        return state.L if self.first_shot and not self.gather_nee else state.R
+        """What the diffuse averages hold, per order: what the gathered point does not add
+        itself (the reflected part R; with first_shot and gather_nee=false all of L but
+        the emission, which then is the direct light). With a finite depth every order
+        (the gathered point reads those it may)."""
+        if self.max_depth >= 0:
+            return state.L
+        return [state.L[0]] if self.first_shot and not self.gather_nee else [state.R]

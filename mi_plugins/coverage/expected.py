@@ -30,6 +30,10 @@ MEDIA = ("medium:homogeneous", "medium:heterogeneous", "phase:isotropic", "phase
          "phase:tabphase", "phase:blendphase", "volume:gridvolume", "volume:constvolume", "case:camera_in_medium")
 #: the wrapping integrators: they call the wrapped one once per camera ray
 WRAPPERS = ("integrator:aov", "integrator:moment")
+#: shapes the finite-element integrators cannot divide into patches (row -> the plugin named)
+NO_PATCHES = {"shape:instance": "instance", "shape:shapegroup": "instance", "shape:ellipsoids": "ellipsoids",
+              "shape:ellipsoidsmesh": "ellipsoidsmesh", "shape:bsplinecurve": "bsplinecurve",
+              "shape:linearcurve": "linearcurve", "shape:sdfgrid": "sdfgrid"}
 
 
 def refusals(name, rows, pattern):
@@ -39,6 +43,7 @@ def refusals(name, rows, pattern):
 
 
 def common_refusals(name):
+    """What every package integrator refuses: participating media, and being wrapped."""
     out = refusals(name, MEDIA, r"^Unsupported: {name}: the participating medium '(homogeneous|heterogeneous)'")
     out.update(refusals(name, WRAPPERS, r"^Unsupported: {name}: being wrapped by an integrator that calls it once "
                                         r"per camera ray"))
@@ -51,28 +56,30 @@ STOCHASTIC_RAY = Spec("stochastic_ray", {"type": "stochastic_ray", "iterations":
                                              "sensor:irradiancemeter"),
                           r"^Unsupported: {name}: the sensor '{feature}' .*light paths reach the camera by connecting "
                           r"to it")))
-RAY_BUNDLE = Spec("ray_bundle", {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12,
-                                 "burn_in": 6}, spp=1, scale_spp=False)
-#: what qmc_lighttrace refuses: media and being wrapped by 'aov' / 'moment' (every package
-#: integrator), shapes it cannot divide into patches, an emitter that only a light path can reach
-MEDIA_ROWS = ("medium:homogeneous", "medium:heterogeneous", "phase:isotropic", "phase:hg", "phase:rayleigh",
-              "phase:sggx", "phase:tabphase", "phase:blendphase", "volume:gridvolume", "volume:constvolume",
-              "case:camera_in_medium")
-MEDIUM_REFUSAL = r"qmc_lighttrace: the participating medium .* is not supported"
-WRAPPED = r"qmc_lighttrace: being wrapped by an integrator that calls it once per camera ray .* is not supported"
-NO_PATCHES = r"qmc_lighttrace: the shape 'subject' \(plugin '%s'\) is not supported: .*divided into patches"
+
+_BUNDLE_BSDF = r"ray_bundle: the BSDF '{feature}' of shape '\w+' is not supported: "
+RAY_BUNDLE = Spec(
+    "ray_bundle", {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12, "burn_in": 6}, spp=1,
+    scale_spp=False,
+    refused=dict(common_refusals("ray_bundle"),
+                 **refusals("ray_bundle", ("bsdf:conductor", "bsdf:dielectric"),
+                            _BUNDLE_BSDF + r"a purely specular \(delta\) surface"),
+                 **refusals("ray_bundle", ("bsdf:thindielectric", "bsdf:null", "bsdf:mask", "bsdf:hair",
+                                           "bsdf:polarizer", "bsdf:retarder", "bsdf:circular"),
+                            _BUNDLE_BSDF + "its null lobe lets light pass through"),
+                 **refusals("ray_bundle", ("bsdf:roughdielectric", "bsdf:principledthin"),
+                            _BUNDLE_BSDF + "it transmits light through the surface"),
+                 **{row: r"ray_bundle: the shape '%s' \(id '\w+'\) is not supported: the bundles exchange radiance "
+                         r"between patches" % plugin for row, plugin in NO_PATCHES.items()}),
+    row_params={"case:open_many_emitters": {"resolution": 48}})
+
 QMC_LIGHTTRACE = Spec(
     "qmc_lighttrace", {"type": "qmc_lighttrace", "samples": 10000}, spp=64,
-    refused=dict({row: MEDIUM_REFUSAL for row in MEDIA_ROWS},
-                 **{"integrator:" + name: WRAPPED for name in ("aov", "moment")},
-                 **{"shape:" + name: NO_PATCHES % plugin for name, plugin in (
-                     ("instance", "instance"), ("shapegroup", "instance"), ("ellipsoids", "ellipsoids"),
-                     ("ellipsoidsmesh", "ellipsoidsmesh"), ("bsplinecurve", "bsplinecurve"),
-                     ("linearcurve", "linearcurve"), ("sdfgrid", "sdfgrid"))},
+    refused=dict(common_refusals("qmc_lighttrace"),
+                 **{row: r"qmc_lighttrace: the shape 'subject' \(plugin '%s'\) is not supported: .*divided into "
+                         r"patches" % plugin for row, plugin in NO_PATCHES.items()},
                  **{"emitter:directionalarea": r"qmc_lighttrace: the emitter 'directionalarea' of shape 'light' is "
-                                              r"not supported: it emits in one direction only"}),
-    na={"texture:blackbody": "Mitsuba 3.9.1 refuses the blackbody spectrum in RGB variants ('Not implemented for "
-                             "non-spectral modes'), its own path included: there is no reference"})
+                                              r"not supported: it emits in one direction only"}))
 
 INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE)}
 

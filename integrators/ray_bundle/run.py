@@ -1,0 +1,238 @@
+"""One ``ray_bundle`` render: set-up, the iterations (frozen steps), the convergence
+check that may extend the burn-in, and the final gathering.
+
+Every iteration runs two frozen steps (:mod:`.frozen`): *advance* (the bundles' transfer,
+the diffuse averages and the power trace of an averaged iteration, the reflection into
+the next direction) and, where the iterations image, *image* (one camera pass of a group
+of chains). The final gathering replays *image* with the averages as its source. A
+camera pass covers the chains of one group (:func:`.limits.camera_group`), so that its
+samples fit in memory whatever the film's size.
+"""
+import warnings
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from mi_plugins import seeds
+from mi_plugins.integrators.ray_bundle import convergence, limits
+from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
+from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
+from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
+from mi_plugins.integrators.ray_bundle.frozen import FrozenStep, fingerprint, freezable, jit_leaves, own_arrays
+from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
+from mi_plugins.meshtable import MeshTable
+
+
+@dataclass
+class Cam:
+    """One camera pass's samples as a frozen step's input."""
+    ray: mi.Ray3f
+    weight: mi.Color3f
+    pos: mi.Vector2f
+    sampler: mi.Sampler
+    count: int
+
+
+@dataclass
+class ChainDirections:
+    """The part of an iteration state the final gathering needs: the directions."""
+    dirs: mi.Vector3f
+    L: list = None
+
+
+def touch(block):
+    """Make ``block``'s (zero) contents an evaluated array instead of a literal: the first
+    frozen step would do it, and its successors see a different input (one more recording)."""
+    block.put(mi.Point2f(0.0), [mi.Float(0.0)] * block.channel_count(), mi.Bool(False))
+    dr.eval(block.tensor())
+
+
+class Run:
+    """The state of one render of ``integ`` into ``frame``; ``available``: bytes of memory."""
+
+    def __init__(self, integ, frame, available, default_chains):
+        self.integ, self.frame, split = integ, frame, integ.split
+        scene, spp = frame.scene, frame.spp
+        self.gather_only = split is not None and split.mode == "gather"
+        limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
+        sides, orders = 2 if integ.bidirectional else 1, integ.orders()
+        h = integ.patch_size_for(scene)
+        limits.check_patches(limits.predicted_patches(scene, h, integ.subdivide), available)
+        table = MeshTable(scene, "ray_bundle", h=h, back_sides=True, subdivide=integ.subdivide)
+        film = frame.film
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        per_chain = (frame.width + 2 * border) * (frame.height + 2 * border)
+        chains = (split.chains if split is not None and split.chains else
+                  integ.chains or limits.default_chains(default_chains, sides * table.count, integ.resolution,
+                                                        available, orders))
+        self.layout = layout = ChainLayout(table, chains, sides, orders)
+        self.group = limits.sampler_group(frame.sensor.sampler(), chains,
+                                          limits.camera_group(chains, per_chain, available))
+        if not self.gather_only:
+            limits.check(layout, integ.resolution, per_chain, self.group, available)
+        self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
+                                   integ.point_sources)
+        self.estimator = ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters, integ.max_depth)
+        self.estimator.group = integ.camera_group = self.group
+        self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
+                        if integ.average_diffuse else None)
+        self.total, self.burn_in = integ.counts(spp)
+        self.window = self.total - self.burn_in
+        # a finite depth is exact once every order is there: no growth to watch
+        self.trace = convergence.PowerTrace(layout, self.window) if integ.max_depth < 0 else None
+        # without averaging, every averaged iteration images everything; with it, the
+        # iterations image only the patches that are not averaged (none to image when all
+        # are) and the final gathering the averaged ones
+        self.image_iterations = self.average is None or not self.average.covers_all
+        self.sources = {"chain": ChainSources(layout, skip=self.average)}
+        if self.average is not None:
+            lo = 0 if integ.max_depth < 0 or (integ.first_shot and not integ.gather_nee) else 1
+            self.sources["averaged"] = AveragedSources(self.average, integ.gather_nee, lo)
+        self.seed = frame.seed
+        for name in (["iterations"] if self.image_iterations else []) + (["final"] if self.average else []):
+            touch(frame.camera_block(name))   # made now: a frozen step must find them among its inputs
+        own_arrays(table, self.transport.direct, self.average, self.estimator)
+        # the frame's blocks (not its committed copies, which change; nor the film, whose
+        # storage, untouched until the end, would be made opaque by the first step)
+        self.leaves = jit_leaves(self.transport, self.estimator, self.average, self.trace, frame._blocks)
+        self.key = self._key(integ, frame, table)
+        # the camera sampler is used inside a step only by the hand-off of delta lobes
+        self.uses_sampler = self.estimator.handoff.needed
+        self.advance, self.image = integ.step_cache.get(self.key, freezable(scene, frame.sensor)
+                                                        or not self.uses_sampler)
+        # the steps' inputs as every step leaves them (evaluated, literals made opaque, e.g. in
+        # the scene's plugins): a step whose first call saw them otherwise records twice
+        FrozenStep("_nothing", self.advance.frozen is not None)(self)
+
+    def _key(self, integ, frame, table):
+        """Every Python value the frozen steps read (see FrozenStep)."""
+        t, film, avg = self.transport, frame.film, self.average
+        return (id(frame.scene), fingerprint(frame.scene), table.count, table.front_count, self.layout.chains,
+                self.layout.sides, self.layout.orders, t.resolution, tuple(t.center), t.radius, t.first_shot,
+                t.finite, t.environment is not None, t.direct.covers_all if t.direct else None,
+                t.direct.any if t.direct else None, avg is not None and (avg.covers_all, avg.estimate),
+                self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
+                integ.estimate, integ.point_sources, self.estimator.handoff.needed, int(film.flags()), frame.width,
+                frame.height,
+                tuple(sorted(frame._blocks)), self.image_iterations)
+
+    def __hash__(self):
+        return hash(self.key)
+
+    def __eq__(self, other):
+        return isinstance(other, Run) and other.key == self.key
+
+    def _nothing(self):
+        pass
+
+    # ------------------------------------------------------------------ frozen steps
+    def _advance(self, state, new_dirs, averaged, index):
+        transport, average = self.transport, self.average
+        incoming = transport.transfer(state)
+        if averaged:
+            if average is not None:
+                average.add(state.dirs, self.integ._averaged_radiance(state), incoming)
+            if self.trace is not None:
+                self.trace.record(state, index)
+        new = transport.reflect(state, incoming, new_dirs)
+        dr.eval(new, incoming, transport.mutable(), average.state if average is not None else None,
+                self.trace.state if self.trace is not None else None)
+        return new, incoming
+
+    def _image(self, cam, state, incoming, sources, chain_offset, rng_seed, block):
+        self.estimator.put(self.frame, cam, state, incoming, self.sources[sources], rng_seed, block, chain_offset)
+        dr.eval([b.tensor() for b, _ in self.frame._blocks.values()])
+
+    def camera_passes(self, count):
+        """``count`` camera passes of every chain: one per group of chains each."""
+        self.frame.camera_passes(self.group, count * (self.layout.chains // self.group))
+
+    def image_pass(self, state, incoming, sources, pass_index, block):
+        """One camera pass of every chain (a pass per group of chains)."""
+        for g in range(self.layout.chains // self.group):
+            cam = self.frame.camera_pass()
+            seed = seeds.stream(self.seed, "camera_path", pass_index * 65537 + g)
+            sampler = cam.sampler if self.uses_sampler else None
+            cam.sampler.schedule_state()                # the camera's samples, not how they were drawn
+            dr.eval(cam.ray, cam.weight, cam.pos)
+            self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count), state, incoming, sources,
+                       dr.opaque(mi.UInt32, g * self.group), dr.opaque(mi.UInt64, seed), block)
+
+    # ------------------------------------------------------------------ iterations
+    def run(self, steps, directions):
+        """Burn-in and averaged iterations; while the chains still converge (``adaptive``)
+        the burn-in goes on, up to the cap (``self.extended``: the iterations added)."""
+        integ, frame, window = self.integ, self.frame, self.window
+        passes = window * (int(self.image_iterations) + int(self.average is not None))
+        self.camera_passes(passes)
+        state = self.transport.initial(chain_directions(directions.next()))
+        dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
+        cap, used, burn_in, self.extended = convergence.EXTENSION_CAP * self.total, 0, self.burn_in, 0
+        while True:
+            state = self._iterations(steps, directions, state, burn_in)
+            used += burn_in + window
+            if state is None or self.trace is None:
+                return
+            v = convergence.verdict(*self.trace.numpy(window), used - window)
+            if v is None or v.converged:
+                return
+            if not integ.adaptive or used + 1 + window > cap:
+                warnings.warn("ray_bundle: not converged after a burn-in of %d iterations: %s. Raise iterations "
+                              "and burn_in (the burn-in must exceed the number of bounces that carry most of the "
+                              "light)%s." % (used - window, v.text(), "" if not integ.adaptive else
+                                             "; the burn-in was extended up to its cap (%dx the planned iterations)"
+                                             % convergence.EXTENSION_CAP), RuntimeWarning, stacklevel=4)
+                return
+            # the window becomes burn-in, followed by the further burn-in the measured growth
+            # asks for (within the cap); then a new window is averaged
+            burn_in = min(v.burn_in_needed(), cap - used - window)
+            self.extended += burn_in + window
+            steps.count = burn_in + window
+            steps.state.total += burn_in + window
+            steps.state.burn_in = used + burn_in
+            for reset in (self.average, self.trace):
+                if reset is not None:
+                    reset.reset()
+            if self.image_iterations:
+                frame.camera_block("iterations").clear()
+                touch(frame.camera_block("iterations"))
+            frame.commit()
+            self.camera_passes(passes)
+
+    def _iterations(self, steps, directions, state, burn_in):
+        """Run ``steps``' iterations, the first ``burn_in`` of them not averaged; returns
+        the last state, or None when the render was stopped."""
+        try:
+            for m in steps.iterations():
+                averaged = m >= burn_in
+                index = dr.opaque(mi.UInt32, max(m - burn_in, 0))
+                new, incoming = self.advance(self, state, chain_directions(directions.next()), averaged, index)
+                if averaged and self.image_iterations:
+                    self.image_pass(state, incoming, "chain", m, "iterations")
+                    self.frame.commit()        # (the blocks change only here: no copy otherwise)
+                state = new
+        except KeyboardInterrupt:
+            steps.stop()               # Ctrl-C: keep the finished iterations
+            self.frame.rollback()
+        return None if steps.state.interrupted else state
+
+    def final_gathering(self, steps, count):
+        """The image of the averaged diffuse patches, the direct light and the seen
+        emission (``average_diffuse``): ``count`` passes with fresh stratified global
+        directions. Ctrl-C (or the progress callback) ends it after the current pass."""
+        integ = self.integ
+        directions = DirectionStream(integ.direction_sequence, self.layout.chains,
+                                     seeds.numpy_rng(self.seed, "gather"), integ.stratify_chains,
+                                     integ.bidirectional, count)
+        for k in steps.second_stage(count):
+            try:
+                state = ChainDirections(chain_directions(directions.next()))
+                self.image_pass(state, None, "averaged", (1 << 20) + k, "final")
+                self.frame.commit()
+            except KeyboardInterrupt:
+                self.frame.rollback()
+                if k == 0:
+                    raise          # no finished pass: there is no image to keep
+                steps.stop()
+                break
