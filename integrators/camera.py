@@ -12,6 +12,8 @@ import mitsuba as mi
 #: camera paths through specular chains play Russian roulette after this many bounces
 #: (survival probability min(max throughput, 0.95), so perfect mirrors terminate too)
 RR_DEPTH = 5
+#: "no limit" of the chains' depth counters
+UNBOUNDED = 1 << 30
 
 
 class CameraPass:
@@ -57,7 +59,8 @@ class CameraPass:
 class SpecularChain:
     """Result of :func:`specular_chain`: ``ray`` reaching the first surface with a
     non-delta component (``reached``), its ``throughput``, the ``emission`` seen along the
-    chain (including that surface's own), and ``depth``, the specular bounces before it."""
+    chain (including that surface's own), ``depth``, the specular bounces before it, and
+    ``surface``: the first segment met a surface that is not hidden (the film's alpha)."""
 
 
 def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitters=False):
@@ -65,42 +68,51 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
 
     Delta BSDFs are sampled with ``rng`` (a per-lane ``mi.PCG32``); the path stops at the
     first surface with any non-delta component (the delta lobes of mixed BSDFs such as
-    ``plastic`` are not followed), after ``max_bounces`` specular bounces, or when
-    Mitsuba's ``max_depth`` (1: emission seen directly only) is reached; Russian roulette
-    after ``RR_DEPTH`` bounces. Rays that leave the scene see the environment emitter, if
-    any. ``hide_emitters`` hides directly visible emission."""
+    ``plastic`` are not followed), after ``max_bounces`` specular bounces (None or -1:
+    no limit), or when Mitsuba's ``max_depth`` (1: emission seen directly only) is
+    reached; Russian roulette after ``RR_DEPTH`` bounces. Rays that leave the scene see
+    the environment emitter, if any. ``hide_emitters`` as Mitsuba means it: the first
+    segment passes through area emitters (Mitsuba's ``path`` shows what lies behind a
+    hidden emitter) and does not see the environment."""
     ctx = mi.BSDFContext()
-    depth_limit = mi.UInt32(max_depth if max_depth >= 0 else (1 << 30))
-    bounce_limit = mi.UInt32(max_bounces if max_bounces is not None else (1 << 30))
+    depth_limit = mi.UInt32(max_depth if max_depth >= 0 else UNBOUNDED)
+    unbounded = max_bounces is None or max_bounces < 0
+    bounce_limit = mi.UInt32(UNBOUNDED if unbounded else max_bounces)
 
-    def body(ray, throughput, emission, active, reached, depth, rng):
+    def body(ray, throughput, emission, active, reached, surface, depth, rng):
         si = scene.ray_intersect(ray, active)
-        seen = active & (depth < depth_limit)      # hits, and misses that see the environment
+        emitter = si.emitter(scene, active)
+        hidden = active & si.is_valid() & (depth == 0) & (emitter != None) if hide_emitters else mi.Bool(False)  # noqa
+        on = active & ~hidden
+        seen = on & (depth < depth_limit)      # hits, and misses that see the environment
         show = seen & si.is_valid()
+        surface |= show & (depth == 0)
         visible = seen & (depth > 0) if hide_emitters else seen
-        emission += dr.select(visible, throughput * mi.Color3f(si.emitter(scene, visible).eval(si, visible)), 0.0)
+        emission += dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
         bsdf = si.bsdf(ray)
         flags = bsdf.flags()
         specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
         reached |= show & ~specular & mi.has_flag(flags, mi.BSDFFlags.Smooth)
         follow = show & specular & (depth + 1 < depth_limit) & (depth < bounce_limit)
-        bs, w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), follow)
+        bs, w = bsdf.sample(ctx, si, rng.next_float32(follow), mi.Point2f(rng.next_float32(follow),
+                                                                           rng.next_float32(follow)), follow)
         throughput = dr.select(follow, throughput * mi.Color3f(w), throughput)
         survive = dr.minimum(dr.max(throughput), 0.95)
         roulette = follow & (depth + 1 >= RR_DEPTH)
-        follow &= ~roulette | (rng.next_float32() < survive)
+        follow &= ~roulette | (rng.next_float32(roulette) < survive)
         throughput = dr.select(roulette & follow, throughput / survive, throughput)
         follow &= dr.max(throughput) > 0
-        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), ray)
+        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), dr.select(hidden, si.spawn_ray(ray.d), ray))
         depth = dr.select(follow, depth + 1, depth)
-        return ray, throughput, emission, follow, reached, depth, rng
+        return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
 
     n = dr.width(ray.o)
-    state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
-                           dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
-                          lambda ray, throughput, emission, active, reached, depth, rng: active, body)
+    with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
+                               dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
+                              lambda *state: state[3], body)
     chain = SpecularChain()
-    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.depth, _ = state
+    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
     return chain
 
 

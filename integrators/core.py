@@ -80,13 +80,13 @@ def gradients_error(plugin, key):
                                "derivatives with %s" % (plugin, key, plugin, DIFFERENTIABLE))
 
 
-def coverage(scene, si, hide_emitters):
-    """The film's alpha of camera rays that reach ``si``, as Mitsuba's integrators make it:
-    1 where the ray hits a surface, and everywhere when the scene has an environment
-    emitter that is not hidden."""
+def coverage(scene, surface, hide_emitters):
+    """The film's alpha of camera rays, as Mitsuba's integrators make it: 1 where the ray
+    shows a surface (``surface``, Bool per ray; hidden emitters are passed through), and
+    everywhere when the scene has an environment emitter that is not hidden."""
     if scene.environment() is not None and not hide_emitters:
-        return dr.full(mi.Bool, True, dr.width(si.t))
-    return si.is_valid()
+        return dr.full(mi.Bool, True, dr.width(surface))
+    return mi.Bool(surface)
 
 
 class Frame:
@@ -358,7 +358,9 @@ class CoreIntegrator(mi.SamplingIntegrator):
             seed = int(dr.ravel(seed)[0]) if dr.width(seed) else 0
         frame = Frame(scene, sensor, spp, seed, self.plugin)
         with dr.suspend_grad():
-            if self.iterative:
+            if not scene.shapes():
+                self.render_empty(frame)
+            elif self.iterative:
                 self.render_frame(frame)
             else:
                 for _ in self.steps(1, 0).iterations():
@@ -367,6 +369,18 @@ class CoreIntegrator(mi.SamplingIntegrator):
 
     def render_frame(self, frame):
         raise NotImplementedError
+
+    def render_empty(self, frame):
+        """A scene without shapes: the camera sees the environment emitter (unless
+        hidden), and nothing else: what every integrator's estimate reduces to."""
+        self.steps(0, 0)
+        frame.camera_passes(frame.spp, 1)
+        cam = frame.camera_pass()
+        si = frame.scene.ray_intersect(cam.ray)
+        value = mi.Color3f(0.0)
+        if not self.hide_emitters and getattr(self, "max_depth", -1) != 0:
+            value = mi.Color3f(si.emitter(frame.scene).eval(si))
+        frame.put_camera(cam, value, coverage=coverage(frame.scene, si.is_valid(), self.hide_emitters))
 
     def check_scene(self, scene, sensor):
         """Refuse what the integrator cannot render right, before any work

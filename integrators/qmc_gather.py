@@ -1,6 +1,6 @@
 """The camera side of ``qmc_lighttrace``: eye rays, the visible point, final gathering.
 
-An eye ray follows purely specular surfaces (:func:`camera_chain`) to the first
+An eye ray follows purely specular surfaces (:func:`~mi_plugins.integrators.camera.specular_chain`) to the first
 surface x with a smooth lobe, the *visible point*. There: one light sample and
 ``gather_samples`` (SR) samples of x's BSDF (cosine rays on diffuse surfaces), combined
 by multiple importance sampling (power heuristic, the light sample against SR BSDF
@@ -22,15 +22,13 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins import seeds
-from mi_plugins.integrators.camera import RR_DEPTH as CHAIN_RR_DEPTH, SpecularChain
+from mi_plugins.integrators.camera import UNBOUNDED, specular_chain
 from mi_plugins.integrators.qmc_particles import patch_side
 from mi_plugins.integrators.qmc_surfaces import reflectance_toward
 
 #: camera-side continuations play Russian roulette from this many segments on
 #: (survival min(max throughput, 0.95)), as Mitsuba's path does
 RR_DEPTH = 5
-#: the depth limit standing for "unbounded"
-UNBOUNDED = 1 << 30
 
 
 def mis(pdf_a, pdf_b):
@@ -67,7 +65,7 @@ class CameraPaths:
         segments used to reach it (UInt32), active)."""
         scene = self.scene
         rng = seeds.pcg(cam.count, seed, "camera_path")
-        chain = camera_chain(scene, cam.ray, rng, self.max_depth, self.mirror_depth, self.hide_emitters)
+        chain = specular_chain(scene, cam.ray, rng, self.max_depth, self.mirror_depth, self.hide_emitters)
         si = scene.ray_intersect(chain.ray, chain.reached)
         used = chain.depth + 1
         active = chain.reached & si.is_valid() & (used < self.depth)
@@ -157,48 +155,3 @@ class CameraPaths:
         diffuse = self.surfaces.diffuse(si, active)
         return dr.select(diffuse, patch_side(self.table, si), 0xFFFFFFFF)
 
-
-def camera_chain(scene, ray, rng, max_depth, mirror_depth, hide_emitters):
-    """``camera.specular_chain`` with Mitsuba's ``hide_emitters``: the first segment passes
-    through area emitters (as ``prb``'s ``skip_area_emitters``; Mitsuba's ``path`` shows
-    what lies behind a hidden emitter) and does not see the environment. ``surface``: the
-    first segment met a surface that is not hidden (the film's alpha)."""
-    ctx = mi.BSDFContext()
-    depth_limit = mi.UInt32(max_depth if max_depth >= 0 else UNBOUNDED)
-    bounce_limit = mi.UInt32(mirror_depth if mirror_depth >= 0 else UNBOUNDED)
-
-    def body(ray, throughput, emission, active, reached, surface, depth, rng):
-        si = scene.ray_intersect(ray, active)
-        emitter = si.emitter(scene, active)
-        hidden = active & si.is_valid() & (depth == 0) & (emitter != None) if hide_emitters else mi.Bool(False)  # noqa
-        on = active & ~hidden
-        seen = on & (depth < depth_limit)      # hits, and misses that see the environment
-        show = seen & si.is_valid()
-        surface |= show & (depth == 0)
-        visible = seen & (depth > 0) if hide_emitters else seen
-        emission += dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
-        bsdf = si.bsdf(ray)
-        flags = bsdf.flags()
-        specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
-        reached |= show & ~specular & mi.has_flag(flags, mi.BSDFFlags.Smooth)
-        follow = show & specular & (depth + 1 < depth_limit) & (depth < bounce_limit)
-        bs, w = bsdf.sample(ctx, si, rng.next_float32(follow), mi.Point2f(rng.next_float32(follow),
-                                                                           rng.next_float32(follow)), follow)
-        throughput = dr.select(follow, throughput * mi.Color3f(w), throughput)
-        survive = dr.minimum(dr.max(throughput), 0.95)
-        roulette = follow & (depth + 1 >= CHAIN_RR_DEPTH)
-        follow &= ~roulette | (rng.next_float32(roulette) < survive)
-        throughput = dr.select(roulette & follow, throughput / survive, throughput)
-        follow &= dr.max(throughput) > 0
-        ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), dr.select(hidden, si.spawn_ray(ray.d), ray))
-        depth = dr.select(follow, depth + 1, depth)
-        return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
-
-    n = dr.width(ray.o)
-    with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
-        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
-                               dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
-                              lambda *state: state[3], body)
-    chain = SpecularChain()
-    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
-    return chain

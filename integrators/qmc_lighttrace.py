@@ -9,11 +9,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc
-from mi_plugins.integrators.core import CoreIntegrator
+from mi_plugins import qmc, support
+from mi_plugins.integrators.core import CoreIntegrator, coverage
 from mi_plugins.integrators.neighbours import share_with_neighbours
-from mi_plugins.integrators.qmc_checks import (check_gather_lanes, refuse_one_direction_emitters,
-                                               refuse_shapes_without_patches)
+from mi_plugins.integrators.qmc_checks import check_gather_lanes
 from mi_plugins.integrators.qmc_gather import CameraPaths
 from mi_plugins.integrators.qmc_particles import dimensions, trace_range
 from mi_plugins.integrators.qmc_store import Layers, check_memory
@@ -184,8 +183,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
-        refuse_shapes_without_patches(self.plugin, scene)
-        refuse_one_direction_emitters(self.plugin, scene)
+        support.refuse_shapes_without_patches(self.plugin, scene)
+        support.refuse_one_direction_emitters(self.plugin, scene)
 
     # ------------------------------------------------------------------ preprocessing
     def preprocess(self, scene, seed=0, report=True):
@@ -289,10 +288,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)
         if self.share_neighbors:
             gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
-        # the film's alpha as Mitsuba makes it (core.coverage): the eye ray met a surface that is
-        # not hidden, or the scene has a visible environment
-        cover = chain.surface | mi.Bool(scene.environment() is not None and not self.hide_emitters)
-        frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered), coverage=cover)
+        frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered),
+                         coverage=coverage(scene, chain.surface, self.hide_emitters))
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (

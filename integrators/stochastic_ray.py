@@ -211,7 +211,7 @@ class StochasticRayIntegrator(CoreIntegrator):
             if not self.hide_emitters:     # (hidden: area emitters are passed through, the sky unseen)
                 value += mi.Color3f(si.emitter(scene).eval(si))
             value += self.handoff.sample(scene, cam.sampler, si, si.bsdf(cam.ray), 1, si.is_valid())
-        frame.put_camera(cam, value, coverage=coverage(scene, si, self.hide_emitters))
+        frame.put_camera(cam, value, coverage=coverage(scene, si.is_valid(), self.hide_emitters))
 
     def _step(self, frame, ray, power, depth, rng, phi_e, do_splat):
         """One transport step on every lane: trace the carried ray, splat the hit point to

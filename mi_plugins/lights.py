@@ -21,7 +21,7 @@ def bounding_sphere(scene):
     Mitsuba merges)."""
     lo, hi = scene_bounds(scene)
     center = 0.5 * (lo + hi)
-    return mi.Point3f(*center), float(np.linalg.norm(hi - lo)) * 0.5 * 1.001 + 1e-4
+    return mi.Point3f(*(float(c) for c in center)), float(np.linalg.norm(hi - lo)) * 0.5 * 1.001 + 1e-4
 
 
 def has_infinite(scene):

@@ -12,15 +12,23 @@ import mitsuba as mi
 
 #: Mitsuba class names (as ``class_name()`` and printing report them) -> plugin names
 PLUGIN_OF_CLASS = {
+    # media, sensors
     "HomogeneousMedium": "homogeneous", "HeterogeneousMedium": "heterogeneous",
     "PerspectiveCamera": "perspective", "ThinLensCamera": "thinlens", "OrthographicCamera": "orthographic",
     "RadianceMeter": "radiancemeter", "IrradianceMeter": "irradiancemeter", "BatchSensor": "batch",
     "DistantSensorImpl": "distant", "DistantSensor": "distant",
-    "BumpMap": "bumpmap", "NormalMap": "normalmap", "Hair": "hair",
-    "SmoothDiffuse": "diffuse", "Null": "null", "MaskBSDF": "mask", "TwoSidedBRDF": "twosided",
+    # BSDFs
+    "SmoothDiffuse": "diffuse", "Null": "null", "MaskBSDF": "mask", "TwoSidedBRDF": "twosided", "Hair": "hair",
+    "BumpMap": "bumpmap", "NormalMap": "normalmap", "BlendBSDF": "blendbsdf", "SmoothConductor": "conductor",
+    "RoughConductor": "roughconductor", "SmoothDielectric": "dielectric", "RoughDielectric": "roughdielectric",
+    "ThinDielectric": "thindielectric", "SmoothPlastic": "plastic", "RoughPlastic": "roughplastic",
+    "PolarizedPlastic": "pplastic", "Principled": "principled", "PrincipledThin": "principledthin",
+    "LinearPolarizer": "polarizer", "LinearRetarder": "retarder", "CircularPolarizer": "circular",
+    # emitters
     "SpotLight": "spot", "Projector": "projector", "PointLight": "point", "DirectionalEmitter": "directional",
     "AreaLight": "area", "DirectionalArea": "directionalarea", "EnvironmentMapEmitter": "envmap",
     "ConstantBackgroundEmitter": "constant", "SunskyEmitter": "sunsky", "TimedSunskyEmitter": "timed_sunsky",
+    # shapes
     "Instance": "instance", "Ellipsoids": "ellipsoids", "EllipsoidsMesh": "ellipsoidsmesh",
     "BSplineCurve": "bsplinecurve", "LinearCurve": "linearcurve", "SDFGrid": "sdfgrid",
 }
@@ -96,6 +104,39 @@ def refuse_classes(integrator, scene, classes, why, instead):
         if found:
             name = PLUGIN_OF_CLASS.get(sorted(found)[0], sorted(found)[0])
             raise Unsupported(integrator, name, "the BSDF '%s' of shape '%s'" % (name, shape.id()), why, instead)
+
+
+def refuse_shapes_without_patches(integrator, scene):
+    """Raise :class:`Unsupported` for a shape that is neither a triangle mesh nor one of
+    the analytic shapes divided into patches (``rectangle``, ``disk``, ``sphere``,
+    ``cylinder``: :mod:`mi_plugins.tessellation`), for the finite-element integrators."""
+    from mi_plugins import tessellation
+    from mi_plugins.meshtable import _is_mesh
+    for shape in scene.shapes():
+        if not _is_mesh(shape) and tessellation.shape_kind(shape) not in tessellation.KINDS:
+            name = plugin_name(shape)
+            raise Unsupported(
+                integrator, name, "the shape '%s' (id '%s')" % (name, shape.id()),
+                "%s stores light per patch, and only triangle meshes and Mitsuba's %s are divided into patches"
+                % (integrator, ", ".join(sorted(k.lower() for k in tessellation.KINDS))),
+                "convert the shape to a triangle mesh (a 'ply' or 'obj' file), or render with Mitsuba's 'path'")
+
+
+def refuse_one_direction_emitters(integrator, scene):
+    """Raise :class:`Unsupported` for a surface emitter whose light leaves in one
+    direction only (``directionalarea``): the direct light of a point comes from light
+    samples, which never reach it (Mitsuba's ``path`` renders it black), while light
+    transported between surfaces would carry it."""
+    for emitter in scene.emitters():
+        flags = emitter.flags()
+        if mi.has_flag(flags, mi.EmitterFlags.DeltaDirection) and mi.has_flag(flags, mi.EmitterFlags.Surface):
+            name = plugin_name(emitter)
+            shape = emitter.get_shape()
+            raise Unsupported(
+                integrator, name, "the emitter '%s'%s" % (name, " of shape '%s'" % shape.id() if shape else ""),
+                "it emits in one direction only: the direct light of the points seen comes from light samples, "
+                "which never reach it (Mitsuba's 'path' renders it black), while light carried between surfaces "
+                "would bring its indirect light", "render it with Mitsuba's 'ptracer', or use an 'area' emitter")
 
 
 def sensors_of(scene, sensor):

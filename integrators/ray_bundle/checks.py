@@ -22,24 +22,10 @@ import warnings
 
 import mitsuba as mi
 
-from mi_plugins import support, tessellation
-from mi_plugins.meshtable import _is_mesh
+from mi_plugins import support
 
-#: Mitsuba class names of BSDFs -> plugin names (support.PLUGIN_OF_CLASS has the common ones)
-BSDF_PLUGINS = {"LinearPolarizer": "polarizer", "LinearRetarder": "retarder", "CircularPolarizer": "circular",
-                "ThinDielectric": "thindielectric", "SmoothConductor": "conductor", "SmoothDielectric": "dielectric",
-                "RoughDielectric": "roughdielectric", "PrincipledThin": "principledthin", "Hair": "hair",
-                "SmoothPlastic": "plastic", "Null": "null", "MaskBSDF": "mask"}
-#: Mitsuba class names of shapes without patches -> plugin names
-SHAPE_PLUGINS = {"Instance": "instance", "Ellipsoids": "ellipsoids", "EllipsoidsMesh": "ellipsoidsmesh",
-                 "BSpline": "bsplinecurve", "LinearCurve": "linearcurve", "SDFgrid": "sdfgrid"}
 F = mi.BSDFFlags
 INSTEAD = "render this scene with Mitsuba's 'path' (or the package's 'stochastic_ray')"
-
-
-def bsdf_plugin(bsdf):
-    name = bsdf.class_name()
-    return BSDF_PLUGINS.get(name) or support.PLUGIN_OF_CLASS.get(name, name)
 
 
 def _has(bsdf, flag):
@@ -47,38 +33,25 @@ def _has(bsdf, flag):
 
 
 def _subject(bsdf, shape):
-    return "the BSDF '%s' of shape '%s'" % (bsdf_plugin(bsdf), shape.id())
-
-
-def check_shapes(scene):
-    """Refuse a shape without patches: the triangle meshes and the analytic rectangle,
-    disk, sphere and cylinder have them (mi_plugins.meshtable)."""
-    for shape in scene.shapes():
-        kind = tessellation.shape_kind(shape)
-        if not _is_mesh(shape) and kind not in tessellation.KINDS:
-            name = SHAPE_PLUGINS.get(kind, kind.lower())
-            raise support.Unsupported(
-                "ray_bundle", name, "the shape '%s' (id '%s')" % (name, shape.id()),
-                "the bundles exchange radiance between patches, the triangles of meshes and cells of the analytic "
-                "rectangle, disk, sphere and cylinder, and this shape has neither", "convert it to a mesh (a "
-                "'ply'/'obj' file) or render with Mitsuba's 'path'")
+    return "the BSDF '%s' of shape '%s'" % (support.plugin_name(bsdf), shape.id())
 
 
 def check_scene(scene, delta_surfaces="refuse"):
     """Raise :class:`Unsupported` for the first shape the bundles cannot carry light
     from or across (see the module docstring); warn for the delta surfaces accepted
     with ``delta_surfaces='camera_only'``."""
-    check_shapes(scene)
+    support.refuse_shapes_without_patches("ray_bundle", scene)
+    support.refuse_one_direction_emitters("ray_bundle", scene)
     delta = []
     for shape, bsdf in support.bsdfs(scene):
         if _has(bsdf, F.Null):
             raise support.Unsupported(
-                "ray_bundle", bsdf_plugin(bsdf), _subject(bsdf, shape),
+                "ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape),
                 "its null lobe lets light pass through the surface, but the bundles' lines stop at every surface "
                 "they meet and the direct light's shadow rays are blocked by it", INSTEAD)
         if _has(bsdf, F.DiffuseTransmission | F.GlossyTransmission):
             raise support.Unsupported(
-                "ray_bundle", bsdf_plugin(bsdf), _subject(bsdf, shape),
+                "ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape),
                 "it transmits light through the surface, and the bundles' patches receive and reflect on one side "
                 "only (light transmitted to the other side would be lost)", INSTEAD)
         if _has(bsdf, F.Delta) and not _has(bsdf, F.Smooth):
@@ -90,7 +63,7 @@ def check_scene(scene, delta_surfaces="refuse"):
            "directions never meet: the light it passes on between surfaces would be missing (the camera still "
            "sees through it)")
     if delta_surfaces == "refuse":
-        raise support.Unsupported("ray_bundle", bsdf_plugin(bsdf), _subject(bsdf, shape), why,
+        raise support.Unsupported("ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape), why,
                                   INSTEAD + "; or set delta_surfaces='camera_only' to accept that bias")
     warnings.warn("ray_bundle: shape(s) %s have purely delta (mirror/glass) BSDFs: %s. The image misses that "
                   "light (delta_surfaces='camera_only')." % (", ".join("'%s'" % s.id() for s, _ in delta), why),

@@ -160,7 +160,7 @@ class Estimator:
             value = path.throughput * value
         covered = None
         if mi.has_flag(frame.film.flags(), mi.FilmFlags.Alpha):
-            covered = coverage(scene, scene.ray_intersect(cam.ray), self.hide_emitters)
+            covered = coverage(scene, path.surface, self.hide_emitters)
         frame.put_camera(cam, value, block, coverage=covered)
 
 
