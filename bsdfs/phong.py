@@ -85,7 +85,6 @@ class PhongBSDF(mi.BSDF):
             <rgb name="specular_reflectance" value="0.17"/><float name="exponent" value="10"/></bsdf>
     """
 
-    plugin = "phong"
 
     def __init__(self, props):
         super().__init__(props)

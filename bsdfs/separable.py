@@ -93,7 +93,6 @@ class SeparableBSDF(mi.BSDF):
         </shape>
     """
 
-    plugin = "separable"
 
     def __init__(self, props):
         super().__init__(props)

@@ -105,7 +105,6 @@ class DirectionalAreaEmitter(SurfaceEmitter):
             <float name="exponent" value="4"/><rgb name="radiance" value="0.8, 0.5, 0.3"/></emitter>
     """
 
-    plugin = "directional_area"
 
     def __init__(self, props):
         super().__init__(props)

@@ -88,7 +88,6 @@ class SimulatedAreaEmitter(SurfaceEmitter):
     M=1: x2.44 (``path``), x1.31 (``ptracer``).
     """
 
-    plugin = "simulated_area"
 
     def __init__(self, props):
         super().__init__(props)

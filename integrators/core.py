@@ -105,6 +105,8 @@ class Frame:
         self._seed_per_pass = False
         self._coverage = None    # see _edge_coverage
         self._alpha_block = None  # the camera block that carries the film's alpha (put_camera)
+        self.task = None          # a part of a distributed render (CoreIntegrator.render_task), or None
+        self.result = None        # what such a task returns instead of an image
 
     # ------------------------------------------------------------------ camera samples
     def camera_passes(self, per_pixel, passes):
@@ -342,6 +344,12 @@ class CoreIntegrator(mi.SamplingIntegrator):
         return Steps(self, iterations, burn_in, total)
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        return self.render_task(scene, None, sensor, seed, spp, develop)
+
+    def render_task(self, scene, task, sensor=0, seed=0, spp=0, develop=True):
+        """A render of ``scene`` that does ``task`` (``frame.task``; None: the whole image):
+        the entry point of the parts of a distributed render (:meth:`distributed_split`).
+        Returns the image, or ``frame.result`` where the task sets one (e.g. per-patch sums)."""
         if isinstance(sensor, int):
             sensors = scene.sensors()
             if not 0 <= sensor < len(sensors):
@@ -357,6 +365,7 @@ class CoreIntegrator(mi.SamplingIntegrator):
         if not isinstance(seed, int):      # a wrapping integrator ('aov') passes its seed as an array
             seed = int(dr.ravel(seed)[0]) if dr.width(seed) else 0
         frame = Frame(scene, sensor, spp, seed, self.plugin)
+        frame.task = task
         with dr.suspend_grad():
             if not scene.shapes():
                 self.render_empty(frame)
@@ -365,7 +374,35 @@ class CoreIntegrator(mi.SamplingIntegrator):
             else:
                 for _ in self.steps(1, 0).iterations():
                     self.render_frame(frame)
-            return frame.develop(develop)
+            image = frame.develop(develop)
+        return frame.result if frame.result is not None else image
+
+    def distributed_split(self, scene):
+        """How a distributed render of ``scene`` splits (:mod:`mi_plugins.distributed.plan`):
+        None (independent passes, the default), 'particles' (a first phase of particle
+        ranges, summed, then passes: :meth:`trace_particles` and :meth:`render_task` with
+        the sum) or 'chains' (groups of chains whose per-patch averages are summed, then
+        final-gathering passes)."""
+        return None
+
+    def run_steps(self, frame, steps, step, after=None, stage=None):
+        """The step loop of the package's iterative integrators: for each step of
+        ``steps`` (its iterations, or the generator ``stage``, e.g.
+        ``steps.second_stage(n)``), ``step(k)`` returns what to evaluate with the frame's
+        blocks; the frame is committed after the evaluation, then ``after(k)`` runs (a
+        check that may extend ``steps``). Ctrl-C inside a step, or a progress callback
+        that stops, ends the loop: the frame returns to its last commit, the finished
+        steps stay. Returns False when the render was stopped."""
+        try:
+            for k in (stage if stage is not None else steps.iterations()):
+                dr.eval(step(k), frame.state())
+                frame.commit()
+                if after is not None:
+                    after(k)
+        except KeyboardInterrupt:
+            steps.stop()
+            frame.rollback()
+        return not steps.state.interrupted
 
     def render_frame(self, frame):
         raise NotImplementedError

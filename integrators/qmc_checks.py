@@ -14,7 +14,7 @@ BYTES_PER_GATHER_LANE = 64
 def check_gather_lanes(plugin, frame, gather_samples):
     """Refuse before any work (a Params-style error naming gather_samples) when the eye
     rays x gather samples of one render exceed 2^32 lanes or half the available memory."""
-    from mi_plugins.integrators.qmc_store import available_memory
+    from mi_plugins.limits import available_memory
     film = frame.film
     border = film.rfilter().border_size() if film.sample_border() else 0
     lanes = (frame.width + 2 * border) * (frame.height + 2 * border) * frame.spp * int(gather_samples)

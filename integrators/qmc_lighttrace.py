@@ -154,11 +154,10 @@ class QMCLightTraceIntegrator(CoreIntegrator):
             <integer name="max_depth" value="-1"/><integer name="samples" value="100000"/></integrator>
     """
 
-    plugin = "qmc_lighttrace"
 
     def __init__(self, props):
         super().__init__(props)
-        p = Params(props, "qmc_lighttrace")
+        p = Params(props, self.plugin)
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
@@ -179,7 +178,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
                              % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
         self.layers = Layers(self.max_depth)
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
-        self.paths_used, self.delta_e_history, self.particles = 0, [], None
+        self.paths_used, self.delta_e_history = 0, []
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
@@ -194,8 +193,9 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         self._particle_phase(scene, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
-    def _particle_phase(self, scene, seed, report=False, rendering=False):
-        """The particle phase (or the one given to :meth:`use_particles`); keeps its numpy
+    def _particle_phase(self, scene, seed, report=False, rendering=False, given=None):
+        """The particle phase (or ``given`` = (deposits, paths), traced elsewhere: a
+        distributed render's sum, :meth:`render_with_particles`); keeps its numpy
         results (with ``report``, also ``reflected_radiance`` and ``triangle_radiance``,
         which take a BSDF and emitter evaluation per patch) and returns (patch table, read
         tables (tables, K, 2, 3)). The table is never kept on the integrator: it holds the
@@ -206,8 +206,8 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         areas = table.areas_np
         self.delta_e_history = []
         shape = (self.layers.count, table.count, 2, 3)
-        if self.particles is not None:
-            total, done = self.particles
+        if given is not None:
+            total, done = np.asarray(given[0], dtype=np.float64), int(given[1])
             if total.shape != shape:
                 raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene and "
                                  "max_depth need shape %s" % (total.shape, shape))
@@ -252,14 +252,28 @@ class QMCLightTraceIntegrator(CoreIntegrator):
 
     def patch_table(self, scene):
         """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
-        return MeshTable(scene, "qmc_lighttrace", h=self.patch_size, subdivide=self.subdivide)
+        return MeshTable(scene, self.plugin, h=self.patch_size, subdivide=self.subdivide)
 
-    def use_particles(self, deposits, paths):
-        """Render with a particle phase traced elsewhere (e.g. summed over the ranges of a
-        distributed render, :func:`mi_plugins.integrators.qmc_particles.trace_range`):
-        ``deposits`` (layers, K, 2, 3) irradiance flux per layer and patch side of ``paths``
-        paths; None returns to tracing the phase in every render."""
-        self.particles = None if deposits is None else (np.asarray(deposits, dtype=np.float64), int(paths))
+    # ------------------------------------------------------------------ distributed parts
+    def distributed_split(self, scene):
+        """A distributed render first traces disjoint ranges of the particle sequence
+        (:meth:`trace_particles`), sums them, then renders passes with the sum
+        (:meth:`render_with_particles`); adaptive termination is sequential: refused."""
+        if self.epsilon is not None:
+            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
+                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
+                             % self.epsilon)
+        return "particles"
+
+    def trace_particles(self, scene, start, count, seed):
+        """The deposits (layers, K, 2, 3) of the paths start .. start + count - 1."""
+        return trace_range(self, scene, self.patch_table(scene), start, count, seed)[0]
+
+    def render_with_particles(self, scene, deposits, paths, spp, seed):
+        """The image of a render whose particle phase was traced elsewhere: ``deposits``
+        (layers, K, 2, 3) of ``paths`` paths (e.g. summed over the ranges of a distributed
+        render)."""
+        return self.render_task(scene, (deposits, paths), spp=spp, seed=seed)
 
     def _side_values(self, scene, table):
         """(f toward the normal on each side, emitted radiance along it), (K, 2, 3) each,
@@ -278,7 +292,7 @@ class QMCLightTraceIntegrator(CoreIntegrator):
     def render_frame(self, frame):
         scene = frame.scene
         check_gather_lanes(self.plugin, frame, self.gather_samples)
-        table, tables = self._particle_phase(scene, frame.seed, rendering=True)
+        table, tables = self._particle_phase(scene, frame.seed, rendering=True, given=frame.task)
         tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
         paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])
                                                                                     for c in range(3))),

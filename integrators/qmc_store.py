@@ -12,12 +12,12 @@ Sums are 64-bit signed fixed point (order-independent integer atomics, negative
 emission included). Limits: a layer count x patch count of at most
 :data:`MAX_PATCH_LAYERS`, and the memory they take must fit in half the available memory.
 """
-import os
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.limits import available_memory
 from mi_plugins.params import parameter_error
 
 #: at most this many (patch, layer) pairs (each holds 2 sides x 3 channels)
@@ -68,21 +68,6 @@ def check_memory(plugin, layers, patches, max_depth):
             "smaller max_depth or a larger patch_size" % (layers.count, patches, MAX_PATCH_LAYERS, pairs,
                                                           need / 2 ** 20, "%.0f MiB available" % (available / 2 ** 20)
                                                           if available is not None else "unknown available")))
-
-
-def available_memory():
-    """MemAvailable of /proc/meminfo in bytes (None where unknown)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 class FixedPoint:

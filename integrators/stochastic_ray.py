@@ -98,14 +98,13 @@ class StochasticRayIntegrator(CoreIntegrator):
             <integer name="burn_in" value="64"/></integrator>
     """
 
-    plugin = "stochastic_ray"
     iterative = True
     #: sensors whose importance light paths can reach (Mitsuba implements their sample_direction)
     SENSORS = ("perspective", "thinlens", "batch")
 
     def __init__(self, props=mi.Properties()):
         super().__init__(props)
-        p = Params(props, "stochastic_ray")
+        p = Params(props, self.plugin)
         self.read_iterations(p, 32)
         self.auto_burn_in = "burn_in" not in props    # fitted to the scene (burn_in.lengthen)
         self.measured_albedo = None
@@ -166,35 +165,34 @@ class StochasticRayIntegrator(CoreIntegrator):
         # loop state of the chains
         ray, power = self._light_ray(scene, rng, mi.Bool(True))   # the carried ray and the power it carries
         depth = dr.zeros(mi.UInt32, chains)                        # surface hits of the light path so far
+        chain = [ray, power, depth]
         steps = self.steps(self.iterations, self.burn_in)
         # each averaged step's splats estimate the image once per chain and pixel
         scale = lambda: frame.pixels / (chains * max(self.progress.averaged, 1))
         frame.light_block("light", scale)
         totals = []      # per averaged step: the light block's sum so far (for the drift check)
         ratios = []      # per step of the burn-in's second half: (power carried, power continued)
-        try:
-            for it in steps.iterations():
-                averaged = it >= steps.state.burn_in
-                carried = _magnitude(power)
-                ray, power, depth, continued = self._step(frame, ray, power, depth, rng, phi_e, averaged)
-                total = frame.block_total("light") if averaged else None
-                window = self.auto_burn_in and steps.state.burn_in // 2 <= it < self.burn_in
-                ratio = (dr.sum(carried), dr.sum(_magnitude(continued))) if window else None
-                dr.eval(ray, power, depth, rng.state, frame.state(), total, ratio)
-                frame.commit()
-                if averaged:
-                    totals.append(total)
-                if window:
-                    ratios.append(ratio)
-                if window and it + 1 == self.burn_in:
-                    self.measured_albedo = burn_in.lengthen(self.plugin, steps, ratios, self.max_iterations)
-                if it + 1 == steps.count and burn_in.drift_check(self.plugin, steps, totals, self.max_iterations,
-                                                                 extend=self.auto_burn_in):
-                    frame.clear("light")
-                    totals.clear()
-        except KeyboardInterrupt:
-            steps.stop()  # Ctrl-C: keep the finished iterations
-            frame.rollback()
+
+        def step(it):
+            averaged = it >= steps.state.burn_in
+            carried = _magnitude(chain[1])
+            chain[0], chain[1], chain[2], continued = self._step(frame, *chain, rng, phi_e, averaged)
+            total = frame.block_total("light") if averaged else None
+            window = self.auto_burn_in and steps.state.burn_in // 2 <= it < self.burn_in
+            ratio = (dr.sum(carried), dr.sum(_magnitude(continued))) if window else None
+            (totals if averaged else []).append(total)
+            (ratios if window else []).append(ratio)
+            return chain, rng.state, total, ratio
+
+        def after(it):
+            if self.auto_burn_in and it + 1 == self.burn_in and ratios:
+                self.measured_albedo = burn_in.lengthen(self.plugin, steps, ratios, self.max_iterations)
+            if it + 1 == steps.count and burn_in.drift_check(self.plugin, steps, totals, self.max_iterations,
+                                                             extend=self.auto_burn_in):
+                frame.clear("light")
+                totals.clear()
+
+        self.run_steps(frame, steps, step, after)
 
     def _camera_paths(self, frame):
         """The camera's share of every step, M(L^e) plus what no connection reaches: the

@@ -2,6 +2,7 @@
 and memory (Linux' MemAvailable). A request beyond them raises a ``ValueError`` /
 ``MemoryError`` naming the plugin, the parameters and the largest value that fits, instead
 of a hang, an allocation failure or a process killed by the system."""
+import os
 
 #: the most lanes of one Dr.Jit array (indices are 32-bit)
 MAX_LANES = (1 << 32) - 1
@@ -10,11 +11,16 @@ MEMORY_SHARE = 0.5
 
 
 def available_memory():
-    """Bytes of memory available (Linux' MemAvailable), or None where it is not known."""
+    """Bytes of memory available (Linux' MemAvailable, else the free physical pages), or
+    None where it is not known."""
     try:
         with open("/proc/meminfo") as f:
             return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
     except (OSError, StopIteration, ValueError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
         return None
 
 

@@ -1,7 +1,9 @@
 """Registration of the package's plugins with Mitsuba's plugin manager.
 
 Each plugin folder (``integrators``, ``bsdfs``, ``emitters``, ``samplers``)
-lists its plugins in a ``PLUGINS`` dict ``{mitsuba_name: "module:Class"}``.
+lists its plugins in a ``PLUGINS`` dict ``{mitsuba_name: "module:Class"}``: the one
+place a plugin's name is written; registration gives the class its ``plugin``
+attribute (messages, parameter errors).
 Plugin classes derive from variant-specific Mitsuba base classes, so their
 modules are (re)loaded for the variant being registered.
 """
@@ -49,6 +51,7 @@ def register_all(variant):
         for name, target in plugins.items():
             module_name, class_name = target.split(":")
             cls = _plugin_class(module_name, class_name, variant)
+            cls.plugin = name        # the one place a plugin's name is written: its folder's PLUGINS
             register_fn(name, lambda props, cls=cls: cls(props))
             registered.setdefault(kind, []).append(name)
     return registered

@@ -42,7 +42,6 @@ class CMJSampler(PaddedSobolSampler):
         'the pattern of Mitsuba\'s ``multijitter`` with every dimension keyed independently, so it is unbiased '
         'where ``multijitter`` couples the numbers of a sample. Best with a ``sample_count`` that is a square or has '
         'a divisor near its square root (a prime count gives a 2D Latin hypercube).')
-    plugin = "cmj"
 
     def _points(self, index, key, coords):
         n = int(self.sample_count())

@@ -53,7 +53,6 @@ class LatticeSampler(PaddedSobolSampler):
         '``sample_count`` points, in its own random order: unbiased, exactly stratified in 1D, and the most '
         'even 2D spread; best on smooth low-dimensional integrands (measured: the lowest errors with one '
         'bounce). Counts >= 9 give useful 2D lattices (4 points lie on a diagonal).')
-    plugin = "lattice"
 
     def _points(self, index, key, coords):
         n = int(self.sample_count())

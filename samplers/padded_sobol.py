@@ -30,7 +30,6 @@ class PaddedSobolSampler(SequenceSampler):
         'dimensions a path uses together is stratified as a (0, m, 2)-net, and no dimension is correlated with '
         'another. Powers of two for ``sample_count`` give complete nets; other counts are unbiased, less '
         'stratified.')
-    plugin = "padded_sobol"
     sequence = "sobol"
     has_scramble = False
 

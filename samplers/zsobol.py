@@ -35,7 +35,6 @@ class ZSobolSampler(PaddedSobolSampler):
         'so pixel errors are blue noise and averages over pixels converge faster. ``sample_count`` is rounded '
         'up to a power of two for the index (only the first ``sample_count`` indices are used); pixels x '
         'that power of two must not exceed 2^32.')
-    plugin = "zsobol"
     sample_bits = index_bits = 0       # set by seed(): bits of the sample index and of g
 
     def seed(self, seed, wavefront_size=0xFFFFFFFF):

@@ -9,6 +9,8 @@ import pytest
 import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
+import drjit as dr  # noqa: E402
+
 import mi_plugins  # noqa: E402,F401  (registers the plugins)
 from mi_plugins.analytic import harness  # noqa: E402
 
@@ -75,7 +77,7 @@ def _primary_variant():
 @pytest.fixture(autouse=True)
 def _collect_scenes():
     """Free the scenes a test leaves in reference cycles right after it: Dr.Jit traces the
-    methods of every live plugin instance in every later render (README, Findings), so
+    methods of every live plugin instance in every later render (docs/findings.md), so
     uncollected scenes make the rest of the suite slower and slower (measured: a 0.4 s
     render took 2.7-12 s with 15 uncollected scenes alive)."""
     yield
@@ -102,13 +104,82 @@ FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py
          "test_cli.py")
 
 
+#: the extended tier: tests that take longer than the default run can afford (node ids,
+#: measured seconds on 2 cores as comments), with the coverage cells marked ``extended``
+#: in their file; ``make test`` leaves them out, ``make test-extended`` (pytest
+#: --extended) runs every test
+EXTENDED = os.path.join(REPO, "tests", "data", "extended_tests.txt")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--extended", action="store_true", default=False,
+                     help="run the extended tier too (tests/data/extended_tests.txt and tests marked extended)")
+
+
+def extended_ids():
+    try:
+        with open(EXTENDED) as f:
+            return {line.split("#", 1)[0].strip() for line in f if line.split("#", 1)[0].strip()}
+    except OSError:
+        return set()
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "extended: a test of the extended tier (make test-extended)")
+
+
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: k for k, name in enumerate(FIRST)}
     items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST)))
+    if config.getoption("--extended") or os.environ.get("MI_PLUGINS_EXTENDED"):
+        return
+    listed = extended_ids()
+    left = [item for item in items if item.get_closest_marker("extended") or item.nodeid in listed
+            or item.nodeid.split("[", 1)[0] in listed]
+    if left:
+        config.hook.pytest_deselected(items=left)
+        kept = set(map(id, left))
+        items[:] = [item for item in items if id(item) not in kept]
+
+
+#: seconds each test file takes on 2 cores (setup, calls and teardowns; a clean checkout,
+#: measured); the summary reports every file over its budget and the total against
+#: TOTAL_BUDGET. A file not listed has DEFAULT_FILE_BUDGET.
+TIME_BUDGET = os.path.join(REPO, "tests", "data", "time_budget.json")
+DEFAULT_FILE_BUDGET = 30.0
+_file_seconds = {}
+
+
+def pytest_runtest_logreport(report):
+    name = report.nodeid.split("::", 1)[0]
+    _file_seconds[name] = _file_seconds.get(name, 0.0) + float(getattr(report, "duration", 0.0))
+    if os.environ.get("MI_PLUGINS_TIMES") and not os.environ.get("PYTEST_XDIST_WORKER"):
+        with open(os.environ["MI_PLUGINS_TIMES"], "a") as f:
+            f.write("%s\t%s\t%.3f\t%s\n" % (report.nodeid, report.when, report.duration, report.outcome))
+
+
+def time_report(seconds):
+    """Lines of the per-file time report: the files over their budget, and the total."""
+    try:
+        with open(TIME_BUDGET) as f:
+            table = json.load(f)
+    except (OSError, ValueError):
+        table = {}
+    budgets, total_budget = table.get("files", {}), float(table.get("total", 15 * 60))
+    over = [(name, t, float(budgets.get(name, DEFAULT_FILE_BUDGET))) for name, t in sorted(seconds.items())
+            if t > float(budgets.get(name, DEFAULT_FILE_BUDGET))]
+    total = sum(seconds.values())
+    lines = ["time: %.0f s in test files (budget %.0f s%s)" % (total, total_budget,
+                                                            ", OVER" if total > total_budget else "")]
+    lines += ["time: %s took %.1f s, over its budget of %.0f s (%s)" % (n, t, b, os.path.relpath(TIME_BUDGET, REPO))
+              for n, t, b in over]
+    return lines
 
 
 def pytest_terminal_summary(terminalreporter):
     for line in budget.summary():
+        terminalreporter.write_line(line)
+    for line in time_report(_file_seconds):
         terminalreporter.write_line(line)
 
 

@@ -50,7 +50,7 @@ SPP = {"constant_brdf_roughconductor_box": 128}
 @pytest.mark.parametrize("name", NAMES)
 def test_xml_loads_and_renders_its_exact_value(name):
     """Each file renders (with its default integrator, `path`) the exact value it states.
-    Mitsuba's sphere finding (README: Findings) is the explicit, bounded bias where it
+    Mitsuba's sphere finding (docs/findings.md) is the explicit, bounded bias where it
     applies."""
     path = os.path.join(CONFIGS, name + ".xml")
     text = open(path).read()

@@ -143,8 +143,9 @@ def test_unmodified_wrapper_passes():
 
 
 def test_truncated_path_fails():
-    """path with max_depth=2 (direct light only) against the full-depth reference."""
-    spec = expectations.IntegratorSpec("path(max_depth=2)", {"type": "path", "max_depth": 2}, spp=512)
+    """Direct light only (Mitsuba's ``direct``: path's max_depth=2, without the parameter
+    that would make the reference truncate too) against the full-depth reference."""
+    spec = expectations.IntegratorSpec("direct", {"type": "direct"}, spp=512)
     r = conformance.run("cornell_mesh", spec, seed=budget.seed(SEED))
     assert r.outcome == outcomes.FAIL and r.z < -4.5, repr(r)
 

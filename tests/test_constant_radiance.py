@@ -83,7 +83,7 @@ def test_lightsource_testing_cases(name, integrator):
 
 
 def test_finding_simulated_normalization_is_biased_high():
-    """Finding (README): the paper's 'simulated' normalization of the separable BSDF is
+    """Finding (docs/findings.md): the paper's 'simulated' normalization of the separable BSDF is
     biased (Jensen, 1/X): with M = 16 and Le = 0.8 cos^2 on the mesh sphere, L = 1.04
     instead of 1; the 'exact' normalization passes the same check."""
     lamp = {"type": "directional_area", "exponent": 2.0, "radiance": 0.8}
@@ -149,7 +149,7 @@ def _glossy_uniform(reflectance):
 
 @pytest.mark.parametrize("reflectance, low, high", [(1.0, 10.0, 16.0), (0.8, 1.3, 1.6)])
 def test_finding_ptracer_roulette_with_negative_simulated_emission(reflectance, low, high):
-    """Finding (README): ptracer's Russian roulette uses max(throughput) and kills light
+    """Finding (docs/findings.md): ptracer's Russian roulette uses max(throughput) and kills light
     paths whose throughput is negative (simulated emission with the uniform estimator on
     a glossy conductor), while positive ones survive: measured 13.2 instead of 1 with
     reflectance 1 and 1.44 with reflectance 0.8 (16 runs x 64 spp)."""

@@ -1,4 +1,4 @@
-"""The standalone reproducers of the README's findings (docs/findings/*.py): every one
+"""The standalone reproducers of the findings of docs/findings.md (docs/findings/*.py): every one
 compiles, needs only mitsuba/drjit/numpy and the standard library, carries a complete
 report in its docstring and is listed in docs/findings/README.md; the two fastest run end
 to end (a few seconds) and still reproduce their finding."""
@@ -54,7 +54,7 @@ def run(name):
     return out.stdout
 
 
-UPDATE = " (if a new Mitsuba fixed this, update the README's Findings and docs/findings)"
+UPDATE = " (if a new Mitsuba fixed this, update docs/findings.md and docs/findings)"
 
 
 def test_spectra_reproducer_runs_and_still_reproduces():

@@ -21,7 +21,7 @@ SPP = {"path": 16, "ptracer": 128}
 @pytest.mark.parametrize("case_name", sorted(MATRIX_CASES))
 def test_mitsuba_integrators_pass_every_case(case_name, integrator):
     """Every classic case with Mitsuba's path and particle tracers. The documented sphere
-    finding (README: Findings) is an explicit, bounded bias here (SPHERE_NEE_BIAS of the
+    finding (docs/findings.md) is an explicit, bounded bias here (SPHERE_NEE_BIAS of the
     exact mean; it is measured precisely by the next test)."""
     case = MATRIX_CASES[case_name](resolution=RES)
     known = case_name in INTEGRATORS[integrator].known_failures
@@ -36,7 +36,7 @@ def test_mitsuba_integrators_pass_every_case(case_name, integrator):
 
 @pytest.mark.parametrize("integrator", ["path", "volpath"])
 def test_finding_mitsuba_sphere_nee_overestimates(integrator):
-    """Finding (README): NEE on Mitsuba's analytic sphere from points on that sphere adds
+    """Finding (docs/findings.md): NEE on Mitsuba's analytic sphere from points on that sphere adds
     ~0.14 % per bounce (measured: max_depth 2 gives 0.75108 +- 0.00001 instead of 0.75).
     The same check passes on the tessellated sphere and with the light tracer."""
     case = analytic.furnace(albedo=0.5, emission=0.5, geometry="sphere", resolution=RES)

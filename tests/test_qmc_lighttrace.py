@@ -904,6 +904,6 @@ def test_shapes_without_patches_are_refused():
     with pytest.raises(Exception) as info:
         mi.render(mi.load_dict(d, optimize=False), spp=1)
     text = str(info.value) + str(info.value.__cause__ or "")
-    assert ("qmc_lighttrace: the shape 'inst' (plugin 'instance') is not supported: qmc_lighttrace stores light per "
+    assert ("qmc_lighttrace: the shape 'instance' (id 'inst') is not supported: qmc_lighttrace stores light per "
             "patch, and only triangle meshes and Mitsuba's cylinder, disk, rectangle, sphere are divided into patches; "
             "convert the shape to a triangle mesh") in text, text

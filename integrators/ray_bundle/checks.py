@@ -36,22 +36,22 @@ def _subject(bsdf, shape):
     return "the BSDF '%s' of shape '%s'" % (support.plugin_name(bsdf), shape.id())
 
 
-def check_scene(scene, delta_surfaces="refuse"):
+def check_scene(plugin, scene, delta_surfaces="refuse"):
     """Raise :class:`Unsupported` for the first shape the bundles cannot carry light
     from or across (see the module docstring); warn for the delta surfaces accepted
     with ``delta_surfaces='camera_only'``."""
-    support.refuse_shapes_without_patches("ray_bundle", scene)
-    support.refuse_one_direction_emitters("ray_bundle", scene)
+    support.refuse_shapes_without_patches(plugin, scene)
+    support.refuse_one_direction_emitters(plugin, scene)
     delta = []
     for shape, bsdf in support.bsdfs(scene):
         if _has(bsdf, F.Null):
             raise support.Unsupported(
-                "ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape),
+                plugin, support.plugin_name(bsdf), _subject(bsdf, shape),
                 "its null lobe lets light pass through the surface, but the bundles' lines stop at every surface "
                 "they meet and the direct light's shadow rays are blocked by it", INSTEAD)
         if _has(bsdf, F.DiffuseTransmission | F.GlossyTransmission):
             raise support.Unsupported(
-                "ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape),
+                plugin, support.plugin_name(bsdf), _subject(bsdf, shape),
                 "it transmits light through the surface, and the bundles' patches receive and reflect on one side "
                 "only (light transmitted to the other side would be lost)", INSTEAD)
         if _has(bsdf, F.Delta) and not _has(bsdf, F.Smooth):
@@ -63,21 +63,22 @@ def check_scene(scene, delta_surfaces="refuse"):
            "directions never meet: the light it passes on between surfaces would be missing (the camera still "
            "sees through it)")
     if delta_surfaces == "refuse":
-        raise support.Unsupported("ray_bundle", support.plugin_name(bsdf), _subject(bsdf, shape), why,
+        raise support.Unsupported(plugin, support.plugin_name(bsdf), _subject(bsdf, shape), why,
                                   INSTEAD + "; or set delta_surfaces='camera_only' to accept that bias")
-    warnings.warn("ray_bundle: shape(s) %s have purely delta (mirror/glass) BSDFs: %s. The image misses that "
-                  "light (delta_surfaces='camera_only')." % (", ".join("'%s'" % s.id() for s, _ in delta), why),
+    warnings.warn("%s: shape(s) %s have purely delta (mirror/glass) BSDFs: %s. The image misses that "
+                  "light (delta_surfaces='camera_only')." % (plugin, ", ".join("'%s'" % s.id() for s, _ in delta),
+                                                             why),
                   RuntimeWarning, stacklevel=4)
 
 
-def check_emitters(scene, first_shot):
+def check_emitters(plugin, scene, first_shot):
     """Without first_shot the bundles carry the emission of surfaces and of the
     environment: a delta light (point, spot, directional) cannot be carried."""
     if first_shot:
         return
     for emitter in scene.emitters():
         if int(emitter.flags()) & int(mi.EmitterFlags.Delta):
-            raise ValueError("ray_bundle: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
+            raise ValueError("%s: emitter '%s' (%s) is a delta light, which the bundles cannot carry "
                              "with first_shot=false; use first_shot=true (its next-event estimation lights "
                              "the patches and the visible points with delta lights)"
-                             % (emitter.id(), str(emitter).split("[", 1)[0].strip()))
+                             % (plugin, emitter.id(), str(emitter).split("[", 1)[0].strip()))

@@ -6,7 +6,7 @@ import numpy as np
 
 from mi_plugins import seeds
 from mi_plugins.integrators.core import CoreIntegrator
-from mi_plugins.integrators.ray_bundle import checks
+from mi_plugins.integrators.ray_bundle import checks, split
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
 from mi_plugins.integrators.ray_bundle import frozen
@@ -17,8 +17,13 @@ from mi_plugins.params import Params
 
 #: the chains of the default (fewer where they would need over a quarter of the memory)
 DEFAULT_CHAINS = 64
-#: renders whose frozen steps an integrator keeps (one per scene and settings)
-FROZEN_CACHE = 4
+#: renders whose frozen steps are kept (one per scene and settings), for every ray_bundle
+#: of the process together: a recording holds its scene's arrays, and a cache inside the
+#: integrator, which its scene holds, would be a reference cycle through C++ that Python's
+#: garbage collector cannot free (every discarded scene would stay alive, and Dr.Jit
+#: traces every live plugin instance: later renders slow down)
+FROZEN_CACHE = 1
+STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
@@ -214,12 +219,11 @@ class RayBundleIntegrator(CoreIntegrator):
             <boolean name="first_shot" value="true"/><boolean name="average_diffuse" value="true"/>
             <string name="direction_sequence" value="independent"/></integrator>
     """
-    plugin = "ray_bundle"
     iterative = True
 
     def __init__(self, props=mi.Properties()):
         super().__init__(props)
-        p = Params(props, "ray_bundle")
+        p = Params(props, self.plugin)
         self.read_iterations(p, 16)
         self.resolution = p.int("resolution", 32, lo=1)
         self.chains = p.int("chains", None, lo=1)       # None: DEFAULT_CHAINS, fewer to fit memory
@@ -240,8 +244,7 @@ class RayBundleIntegrator(CoreIntegrator):
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
         self.point_sources = p.bool("point_sources", True)
-        self.split = None      # a distributed render's task (see split.py); None: a whole render
-        self.step_cache = frozen.StepCache(FROZEN_CACHE)      # the frozen steps of the last renders
+        self.step_cache = STEP_CACHE      # the frozen steps of the last renders (shared, bounded)
 
     def orders(self):
         """Radiance values per lane: 1 (unbounded depth), else the bounce orders a path of
@@ -277,8 +280,8 @@ class RayBundleIntegrator(CoreIntegrator):
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
-        checks.check_scene(scene, self.delta_surfaces)
-        checks.check_emitters(scene, self.first_shot)
+        checks.check_scene(self.plugin, scene, self.delta_surfaces)
+        checks.check_emitters(self.plugin, scene, self.first_shot)
 
     def render_frame(self, frame):
         # no garbage collection during a render: a Mitsuba object of an earlier scene freed
@@ -297,22 +300,44 @@ class RayBundleIntegrator(CoreIntegrator):
 
     def _render_frame(self, frame):
         run = Run(self, frame, available_memory(), DEFAULT_CHAINS)
-        split = self.split
+        task = frame.task              # a distributed render's part (split.py), or None
         if run.gather_only:          # a distributed render's gathering task: the averages are given
-            run.average.load(*split.average)
-            run.camera_passes(split.passes)
+            run.average.load(*task.average)
+            run.camera_passes(task.passes)
             touch(frame.camera_block("final"))
-            run.final_gathering(self.steps(0, 0, split.passes), split.passes)
+            run.final_gathering(self.steps(0, 0, task.passes), task.passes)
             return
         directions = DirectionStream(self.direction_sequence, run.layout.chains,
                                      seeds.numpy_rng(frame.seed, "directions"), self.stratify_chains,
                                      self.bidirectional, run.total + 1)
         steps = self.steps(run.total, run.burn_in, self.iteration_count(frame.spp))
         run.run(steps, directions)
-        if split is not None:          # a distributed render's chain task: the averages, no image
-            split.result = run.average.numpy()
+        if task is not None:          # a distributed render's chain task: the averages, no image
+            frame.result = run.average.numpy()
         elif run.average is not None and self.progress.averaged > 0:
             run.final_gathering(steps, self.progress.averaged)
+
+    # ------------------------------------------------------------------ distributed parts
+    def distributed_split(self, scene):
+        """With ``average_diffuse`` on a purely diffuse scene a distributed render splits
+        into groups of chains (:meth:`chain_averages`), whose per-patch averages are summed,
+        then final-gathering passes from the sum (:meth:`gather_from`); otherwise into
+        passes (see :mod:`.split`)."""
+        return "chains" if split.splits_by_chains(self, scene) else None
+
+    def chain_count(self):
+        return self.chains or DEFAULT_CHAINS
+
+    def final_passes(self, spp):
+        return split.final_passes(self, spp)
+
+    def chain_averages(self, scene, seed, spp, chains):
+        """Sums (K, 3) and counts (K,) of the diffuse averages of ``chains`` chains."""
+        return split.run_chains(self, scene, seed, spp, chains)
+
+    def gather_from(self, scene, sums, counts, passes, seed):
+        """The image (float64) of ``passes`` final-gathering passes from given averages."""
+        return split.run_gathering(self, scene, sums, counts, passes, seed)
 
     def _averaged_radiance(self, state):
         """What the diffuse averages hold, per order: what the gathered point does not add

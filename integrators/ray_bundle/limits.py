@@ -18,6 +18,7 @@ import numpy as np
 
 from mi_plugins import tessellation
 from mi_plugins.meshtable import _is_mesh, _reflects_on_both_sides, require_meshes, split_levels
+from mi_plugins.limits import available_memory  # noqa: F401  (re-exported)
 
 #: bytes per lane (chain x patch side) with one order, and per further order
 BYTES_PER_LANE = 120
@@ -33,15 +34,6 @@ MAX_ITERATIONS = 1 << 20
 MAX_LANES = 1 << 31
 #: finite max_depth at the most (each order is a full copy of the chains' radiance)
 MAX_DEPTH = 64
-
-
-def available_memory():
-    """Bytes of memory available (Linux' MemAvailable), or None where it is not known."""
-    try:
-        with open("/proc/meminfo") as f:
-            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
-    except (OSError, StopIteration, ValueError):
-        return None
 
 
 def lane_bytes(orders=1):

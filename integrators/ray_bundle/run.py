@@ -52,14 +52,14 @@ class Run:
     """The state of one render of ``integ`` into ``frame``; ``available``: bytes of memory."""
 
     def __init__(self, integ, frame, available, default_chains):
-        self.integ, self.frame, split = integ, frame, integ.split
+        self.integ, self.frame, split = integ, frame, frame.task
         scene, spp = frame.scene, frame.spp
         self.gather_only = split is not None and split.mode == "gather"
         limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
         h = integ.patch_size_for(scene)
         limits.check_patches(limits.predicted_patches(scene, h, integ.subdivide), available)
-        table = MeshTable(scene, "ray_bundle", h=h, back_sides=True, subdivide=integ.subdivide)
+        table = MeshTable(scene, integ.plugin, h=h, back_sides=True, subdivide=integ.subdivide)
         film = frame.film
         border = film.rfilter().border_size() if film.sample_border() else 0
         per_chain = (frame.width + 2 * border) * (frame.height + 2 * border)
@@ -203,19 +203,17 @@ class Run:
     def _iterations(self, steps, directions, state, burn_in):
         """Run ``steps``' iterations, the first ``burn_in`` of them not averaged; returns
         the last state, or None when the render was stopped."""
-        try:
-            for m in steps.iterations():
-                averaged = m >= burn_in
-                index = dr.opaque(mi.UInt32, max(m - burn_in, 0))
-                new, incoming = self.advance(self, state, chain_directions(directions.next()), averaged, index)
-                if averaged and self.image_iterations:
-                    self.image_pass(state, incoming, "chain", m, "iterations")
-                    self.frame.commit()        # (the blocks change only here: no copy otherwise)
-                state = new
-        except KeyboardInterrupt:
-            steps.stop()               # Ctrl-C: keep the finished iterations
-            self.frame.rollback()
-        return None if steps.state.interrupted else state
+        last = [state]
+
+        def step(m):
+            averaged = m >= burn_in
+            index = dr.opaque(mi.UInt32, max(m - burn_in, 0))
+            new, incoming = self.advance(self, last[0], chain_directions(directions.next()), averaged, index)
+            if averaged and self.image_iterations:
+                self.image_pass(last[0], incoming, "chain", m, "iterations")
+            last[0] = new
+
+        return last[0] if self.integ.run_steps(self.frame, steps, step) else None
 
     def final_gathering(self, steps, count):
         """The image of the averaged diffuse patches, the direct light and the seen
@@ -225,14 +223,10 @@ class Run:
         directions = DirectionStream(integ.direction_sequence, self.layout.chains,
                                      seeds.numpy_rng(self.seed, "gather"), integ.stratify_chains,
                                      integ.bidirectional, count)
-        for k in steps.second_stage(count):
-            try:
-                state = ChainDirections(chain_directions(directions.next()))
-                self.image_pass(state, None, "averaged", (1 << 20) + k, "final")
-                self.frame.commit()
-            except KeyboardInterrupt:
-                self.frame.rollback()
-                if k == 0:
-                    raise          # no finished pass: there is no image to keep
-                steps.stop()
-                break
+        def step(k):
+            self.image_pass(ChainDirections(chain_directions(directions.next())), None, "averaged", (1 << 20) + k,
+                            "final")
+
+        if not self.integ.run_steps(self.frame, steps, step, stage=steps.second_stage(count)) and \
+                steps.state.second_stage == 0:
+            raise KeyboardInterrupt          # no finished pass: there is no image to keep

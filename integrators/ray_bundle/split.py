@@ -17,7 +17,6 @@ The total work equals one render's: every chain runs its burn-in once. Other ren
 """
 from dataclasses import dataclass
 
-import mitsuba as mi
 import numpy as np
 
 from mi_plugins.integrators.ray_bundle.direct import diffuse_only
@@ -25,14 +24,13 @@ from mi_plugins.integrators.ray_bundle.direct import diffuse_only
 
 @dataclass
 class Split:
-    """What the next render of the integrator does: ``mode`` 'chains' (iterations of
-    ``chains`` chains, no image; ``result`` = (sums, counts)) or 'gather' (``passes``
+    """A render's part (``render_task``): ``mode`` 'chains' (iterations of ``chains``
+    chains, no image; the result is (sums, counts)) or 'gather' (``passes``
     final-gathering passes from ``average`` = (sums, counts), no iterations)."""
     mode: str
     chains: int = 0
     passes: int = 0
     average: tuple = None
-    result: tuple = None
 
 
 def splits_by_chains(integ, scene):
@@ -48,18 +46,10 @@ def final_passes(integ, spp):
 def run_chains(integ, scene, seed, spp, chains):
     """Sums (K, 3) and counts (K,) of the diffuse averages of ``chains`` chains run for
     ``integ.iterations * spp`` iterations with render seed ``seed``."""
-    integ.split = Split("chains", chains=int(chains))
-    try:
-        mi.render(scene, spp=int(spp), seed=int(seed))
-        return integ.split.result
-    finally:
-        integ.split = None
+    return integ.render_task(scene, Split("chains", chains=int(chains)), seed=int(seed), spp=int(spp))
 
 
 def run_gathering(integ, scene, sums, counts, passes, seed):
     """The image (float64) of ``passes`` final-gathering passes from the given averages."""
-    integ.split = Split("gather", passes=int(passes), average=(sums, counts))
-    try:
-        return np.array(mi.render(scene, spp=1, seed=int(seed)), dtype=np.float64)
-    finally:
-        integ.split = None
+    image = integ.render_task(scene, Split("gather", passes=int(passes), average=(sums, counts)), seed=int(seed), spp=1)
+    return np.array(image, dtype=np.float64)

@@ -69,24 +69,20 @@ class Phase:
 
 def phases(integrator, scene, spp, tasks, seed):
     """The phases of a render of ``scene`` with ``spp`` samples in ``tasks`` tasks:
-    (first phase or None, image phase, spp per unit of the image phase's merge weight)."""
-    from mi_plugins.integrators.ray_bundle.split import final_passes, splits_by_chains
-    kind = getattr(integrator, "plugin", None)
-    if kind == "qmc_lighttrace":
-        if integrator.epsilon is not None:
-            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
-                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
-                             % integrator.epsilon)
+    (first phase or None, image phase, spp per unit of the image phase's merge weight).
+    The integrator says how it splits (``distributed_split``: the package's integrators
+    have it; every other integrator renders passes)."""
+    split = getattr(integrator, "distributed_split", lambda scene: None)(scene)
+    if split == "particles":
         paths = integrator.samples
         first = Phase("particles", particle_tasks(paths, tasks, seed), run_particles,
                       lambda results, ranges: (merge_particles(results, ranges), paths))
         return first, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
-    if kind == "ray_bundle" and splits_by_chains(integrator, scene):
-        from mi_plugins.integrators.ray_bundle.integrator import DEFAULT_CHAINS
-        chains = integrator.chains or DEFAULT_CHAINS
+    if split == "chains":
+        chains = integrator.chain_count()
         groups = min(tasks, max(1, chains // MIN_CHAINS))
         first = Phase("chains", chain_tasks(chains, spp, groups, seed), run_chains, merge_chains)
-        total = final_passes(integrator, spp)
+        total = integrator.final_passes(spp)
         return first, Phase("gathering", gathering_tasks(total, tasks, seed), run_gathering), spp / max(total, 1)
     return None, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
 
@@ -209,15 +205,13 @@ def run_pass(shipped, params, variant, task, threads=None, particles=None):
     import mitsuba as mi
     scene = _scene(shipped, params, variant, threads)
     integrator = scene.integrator()
-    if particles is not None:
-        integrator.use_particles(*particles)
     try:
+        if particles is not None:
+            return np.array(integrator.render_with_particles(scene, particles[0], particles[1], task.spp, task.seed),
+                            dtype=np.float64)
         return np.array(mi.render(scene, spp=task.spp, seed=task.seed), dtype=np.float64)
     except Exception as error:
         raise _portable(error) from None
-    finally:
-        if particles is not None:
-            integrator.use_particles(None, 0)
 
 
 def _portable(error):
@@ -235,28 +229,23 @@ def _portable(error):
 
 def run_chains(shipped, params, variant, task, threads=None):
     """ray_bundle: the average sums and counts of one group of chains."""
-    from mi_plugins.integrators.ray_bundle.split import run_chains as chains
     scene = _scene(shipped, params, variant, threads)
     try:
-        return chains(scene.integrator(), scene, task.seed, task.spp, task.count), shape_order(scene)
+        return scene.integrator().chain_averages(scene, task.seed, task.spp, task.count), shape_order(scene)
     except Exception as error:
         raise _portable(error) from None
 
 
 def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
-    from mi_plugins.integrators.ray_bundle.split import run_gathering as gathering
     scene = _scene(shipped, params, variant, threads)
     try:
-        return gathering(scene.integrator(), scene, average[0], average[1], task.spp, task.seed)
+        return scene.integrator().gather_from(scene, average[0], average[1], task.spp, task.seed)
     except Exception as error:
         raise _portable(error) from None
 
 
 def run_particles(shipped, params, variant, task, threads=None):
-    """The deposits (K, 2, 3) of one range of qmc_lighttrace's particle phase."""
-    from mi_plugins.integrators.qmc_particles import trace_range
+    """The deposits of one range of qmc_lighttrace's particle phase."""
     scene = _scene(shipped, params, variant, threads)
-    integrator = scene.integrator()
-    return (trace_range(integrator, scene, integrator.patch_table(scene), task.start, task.count, task.seed)[0],
-            shape_order(scene))
+    return scene.integrator().trace_particles(scene, task.start, task.count, task.seed), shape_order(scene)
