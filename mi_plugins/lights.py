@@ -5,9 +5,9 @@ carries, from five numbers in [0, 1): Mitsuba's ``Emitter.sample_ray`` for delta
 and the package's surface lights; for textured ``area`` lights a point uniform on the shape
 (``Shape.sample_position``) and a cosine-distributed direction, weighted by the
 radiance there (Mitsuba 3.9.1's ``area`` samples a textured radiance in the texture's
-uv space and maps it onto the shape through its uv parameterization: on a mesh without
-uv coordinates almost every sample is lost, the power of the rays is a few per mille of
-the light's, docs/findings.md); for environment and directional lights (``envmap``, ``constant``,
+uv space and maps it onto the shape through its uv parameterization: on a mesh whose uv
+map is not one-to-one, e.g. with seams, almost every sample is lost and the rays carry a
+few per mille of the light's power, docs/findings.md); for environment and directional lights (``envmap``, ``constant``,
 ``sunsky``, ``directional``) a direction from ``sample_direction`` and a point of a disk
 across the scene's bounding sphere perpendicular to it. The latter replaces Mitsuba
 3.9.1's own ``envmap`` ray sampling, which tilts that disk when the map is rotated
@@ -63,13 +63,19 @@ def sample_light_rays(scene, u_emitter, u_position, u_direction, active=True):
     index, choice_weight, u_reused = scene.sample_emitter(u_emitter, active)
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
     position = mi.Point2f(u_reused, u_position.y)
-    ray, power = emitter.sample_ray(0.0, 0.5, position, u_direction, active)
     area = area_lights(scene)
+    if area is None or not dr.all(area):
+        # (not where every emitter is a textured area light: Mitsuba's sample_ray of some
+        # textures, e.g. checkerboard, raises 'not implemented')
+        ray, power = emitter.sample_ray(0.0, 0.5, position, u_direction, active)
     if area is not None:
         uniform = active & dr.gather(mi.Bool, area, index, active)
         ray_a, power_a = _area_light_rays(emitter, position, u_direction, uniform)
-        ray = dr.select(uniform, ray_a, ray)
-        power = dr.select(uniform, power_a, power)
+        if dr.all(area):
+            ray, power = ray_a, power_a
+        else:
+            ray = dr.select(uniform, ray_a, ray)
+            power = dr.select(uniform, power_a, power)
     if has_infinite(scene):
         center, r = bounding_sphere(scene)
         it = dr.zeros(mi.Interaction3f)

@@ -151,6 +151,9 @@ _file_seconds = {}
 
 
 def pytest_runtest_logreport(report):
+    """Sums each file's seconds; with MI_PLUGINS_TIMES=FILE also appends every test phase's
+    seconds to FILE (node id, phase, seconds, outcome; written once, by the controller
+    under pytest-xdist): the measurements behind tests/data/extended_tests.txt."""
     name = report.nodeid.split("::", 1)[0]
     _file_seconds[name] = _file_seconds.get(name, 0.0) + float(getattr(report, "duration", 0.0))
     if os.environ.get("MI_PLUGINS_TIMES") and not os.environ.get("PYTEST_XDIST_WORKER"):
