@@ -11,4 +11,4 @@ PLUGINS = {
 }
 
 #: modules holding base classes of the plugins above (reloaded first on a variant switch)
-BASES = ["core"]
+BASES = ["core", "solving"]

@@ -59,8 +59,10 @@ class CameraPass:
 class SpecularChain:
     """Result of :func:`specular_chain`: ``ray`` reaching the first surface with a
     non-delta component (``reached``), its ``throughput``, the ``emission`` seen along the
-    chain (including that surface's own), ``depth``, the specular bounces before it, and
-    ``surface``: the first segment met a surface that is not hidden (the film's alpha)."""
+    chain (including that surface's own), ``depth``, the specular bounces before it,
+    ``surface``: the first segment met a surface that is not hidden (the film's alpha),
+    and ``si``: the surface interaction at ``ray``'s hit where it is known (a scene
+    without surfaces to follow), else None."""
 
 
 def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitters=False):
@@ -107,13 +109,30 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
         return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
 
     n = dr.width(ray.o)
+    chain = SpecularChain()
+    chain.si = None
+    if not hide_emitters and not any(is_specular(shape.bsdf()) for shape in scene.shapes()):
+        # no surface to follow: the loop's first step alone, and its hit is the visible point
+        si = scene.ray_intersect(ray)
+        seen = mi.Bool(max_depth != 0)
+        show = seen & si.is_valid()
+        chain.ray, chain.throughput, chain.depth, chain.surface, chain.si = ray, dr.ones(mi.Color3f, n), \
+            dr.zeros(mi.UInt32, n), show, si
+        chain.emission = dr.select(seen, mi.Color3f(si.emitter(scene).eval(si, seen)), 0.0)
+        chain.reached = show & mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.Smooth)
+        return chain
     with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
         state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
                                dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
                               lambda *state: state[3], body)
-    chain = SpecularChain()
     chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
     return chain
+
+
+def is_specular(bsdf):
+    """The scalar BSDF has only delta (or null) lobes: camera chains follow it."""
+    flags = int(bsdf.flags()) if bsdf is not None else 0
+    return bool(flags & int(mi.BSDFFlags.Delta)) and not flags & int(mi.BSDFFlags.Smooth)
 
 
 def first_shown(scene, ray, hide_emitters, active=True):

@@ -49,14 +49,27 @@ def light_sample(scene, si, bsdf, sample, active, bsdf_samples=1.0):
     return dr.select(ok, mi.Color3f(f) * mi.Color3f(em_weight) * w, 0.0)
 
 
-class CameraPaths:
-    """Camera paths of one render: ``tables`` (Color3f, read table t of patch side ps at
-    t x 2K + ps), ``layers`` (``qmc_store.Layers``), ``max_depth`` (-1: unbounded),
-    ``mirror_depth`` (-1: unbounded; delta bounces followed by the eye ray, and by each
-    gather continuation)."""
+class FlatTables:
+    """The stored light of the read tables, constant per patch side: ``tables`` (Color3f,
+    table t of patch side ps at t x 2K + ps) of ``table``'s K patches."""
 
-    def __init__(self, scene, table, surfaces, layers, tables, max_depth, mirror_depth, hide_emitters):
-        self.scene, self.table, self.surfaces, self.layers, self.tables = scene, table, surfaces, layers, tables
+    def __init__(self, table, tables):
+        self.table, self.tables = table, tables
+
+    def __call__(self, hit, index, active):
+        """The irradiance of table ``index`` at hits ``hit`` (diffuse patch sides)."""
+        stride = 2 * self.table.front_count
+        return dr.gather(mi.Color3f, self.tables, index * stride + patch_side(self.table, hit), active)
+
+
+class CameraPaths:
+    """Camera paths of one render: ``stored`` (a reader of the stored irradiance, e.g.
+    :class:`FlatTables`), ``layers`` (``qmc_store.Layers``: which table a path may read),
+    ``max_depth`` (-1: unbounded), ``mirror_depth`` (-1: unbounded; delta bounces followed
+    by the eye ray, and by each gather continuation)."""
+
+    def __init__(self, scene, table, surfaces, layers, stored, max_depth, mirror_depth, hide_emitters):
+        self.scene, self.table, self.surfaces, self.layers, self.stored = scene, table, surfaces, layers, stored
         self.depth = UNBOUNDED if max_depth < 0 else int(max_depth)
         self.max_depth, self.mirror_depth, self.hide_emitters = int(max_depth), int(mirror_depth), hide_emitters
 
@@ -66,18 +79,25 @@ class CameraPaths:
         scene = self.scene
         rng = seeds.pcg(cam.count, seed, "camera_path")
         chain = specular_chain(scene, cam.ray, rng, self.max_depth, self.mirror_depth, self.hide_emitters)
-        si = scene.ray_intersect(chain.ray, chain.reached)
+        si = chain.si if chain.si is not None else scene.ray_intersect(chain.ray, chain.reached)
         used = chain.depth + 1
         active = chain.reached & si.is_valid() & (used < self.depth)
-        return chain, si, si.bsdf(chain.ray), used, active
+        bsdf = si.bsdf(chain.ray)
+        dr.eval(chain.emission, chain.throughput, chain.surface, si, bsdf, used, active)   # the chain's one kernel
+        return chain, si, bsdf, used, active
 
     def estimate(self, cam, seed, gather_samples):
         """(chain, si, light, gathered) at the visible points: the light sample's share of
         the direct light, and the average of the gather samples (the rest of the direct
         light, seen at their first hit, and everything beyond; one sum, since the two parts
-        of a sample are strongly anti-correlated where emitting surfaces also reflect).
-        The SR gather samples of an eye ray are SR consecutive lanes of one loop."""
+        of a sample are strongly anti-correlated where emitting surfaces also reflect)."""
         chain, si, bsdf, used, active = self.visible_points(cam, seed)
+        light, gathered = self.gather(cam, seed, gather_samples, si, bsdf, used, active)
+        return chain, si, light, gathered
+
+    def gather(self, cam, seed, gather_samples, si, bsdf, used, active):
+        """(light, gathered) at visible points ``si`` (lanes ``active``) of camera pass
+        ``cam``; the SR gather samples of an eye ray are SR consecutive lanes of one loop."""
         sr, n = int(gather_samples), cam.count
         light = light_sample(self.scene, si, bsdf, cam.sampler.next_2d(active), active, float(sr))
         # the gather samples' numbers from the camera sampler, lane i * SR + j for sample j of eye lane i
@@ -88,7 +108,7 @@ class CameraPaths:
             for target, value in zip(numbers, (u1, u2.x, u2.y)):
                 dr.scatter(target, value, slots + j)
         cam.sampler.schedule_state()
-        dr.eval(chain.emission, chain.throughput, si, bsdf, used, active, light, numbers)
+        dr.eval(light, numbers)
         eye = dr.arange(mi.UInt32, n * sr) // sr
         at, go = dr.gather(mi.SurfaceInteraction3f, si, eye), dr.gather(mi.Bool, active, eye)
         vertex = dr.gather(mi.BSDFPtr, bsdf, eye, go)
@@ -98,14 +118,14 @@ class CameraPaths:
         result = self.continuation(at, bs, mi.Color3f(weight), dr.gather(mi.UInt32, used, eye), go, rng, sr)
         dr.eval(result)    # one kernel (block_sum of each channel alone would launch the loop three times)
         gathered = mi.Color3f(*(dr.block_sum(result[c], sr) / sr for c in range(3)))
-        return chain, si, light, gathered
+        return light, gathered
 
     def continuation(self, si, bs, weight, used, active, rng, sr=1):
         """The radiance a BSDF sample ``bs`` (weight ``weight``) of vertex ``si`` brings
         back, the vertex having used ``used`` segments; the sample's pdf counts ``sr``
         times in the MIS weight of the emission it reaches (the vertex's light sample
         was weighted against sr BSDF samples)."""
-        scene, table, surfaces, layers, tables = self.scene, self.table, self.surfaces, self.layers, self.tables
+        scene, surfaces, layers, stored = self.scene, self.surfaces, self.layers, self.stored
         depth = mi.UInt32(self.depth)
         mirrors = mi.UInt32(self.mirror_depth if self.mirror_depth >= 0 else UNBOUNDED)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
@@ -130,8 +150,7 @@ class CameraPaths:
             # a diffuse hit: the stored light of particle hits k >= 2 that fit in the depth left
             index, readable = layers.read_table(mi.Int32(depth) - mi.Int32(segment))
             read = go & diffuse & readable
-            stored = dr.gather(mi.Color3f, tables, index * (2 * table.count) + patch_side(table, hit), read)
-            result += dr.select(read, beta * stored * reflectance_toward(bsdf, hit, read), 0.0)
+            result += dr.select(read, beta * stored(hit, index, read) * reflectance_toward(bsdf, hit, read), 0.0)
             # the next segment: after a diffuse hit only to see its emission (MIS)
             bs, weight = bsdf.sample(mi.BSDFContext(), hit, rng.next_float32(go),
                                      mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)

@@ -10,14 +10,17 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import qmc, support
-from mi_plugins.integrators.core import CoreIntegrator, coverage
+from mi_plugins.integrators.core import coverage
+from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.neighbours import share_with_neighbours
 from mi_plugins.integrators.qmc_checks import check_gather_lanes
-from mi_plugins.integrators.qmc_gather import CameraPaths
+from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import dimensions, trace_range
-from mi_plugins.integrators.qmc_store import Layers, check_memory
-from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward
-from mi_plugins.meshtable import MeshTable, patch_parameters
+from mi_plugins.integrators.qmc_phase import particle_phase
+from mi_plugins.integrators.qmc_store import Layers
+from mi_plugins.integrators.qmc_surfaces import Surfaces
+from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
+from mi_plugins.solution import Solution
 from mi_plugins.params import Params
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
@@ -27,7 +30,7 @@ MAX_PATHS = 1 << 32
 MAX_GATHER = 1024
 
 
-class QMCLightTraceIntegrator(CoreIntegrator):
+class QMCLightTraceIntegrator(SolutionIntegrator):
     r"""
     .. _integrator-qmc_lighttrace:
 
@@ -125,6 +128,23 @@ class QMCLightTraceIntegrator(CoreIntegrator):
        - true
        - split long mesh triangles (above); false keeps the triangles as modelled (the
          papers' patches)
+     * - display
+       - string
+       - ``'gather'``
+       - how the image is made: ``'gather'`` (the estimate above); ``'smooth'``,
+         ``'patches'``, ``'baked'``: from the view-independent solution (the particles'
+         irradiance per patch side, ``mi_plugins.solution``). Any display keeps the
+         solution for every later render of the scene with the same seed, whatever the
+         sensor or spp. ``'smooth'``: direct light by next-event estimation plus the
+         stored light interpolated from per-vertex values, no gather ray; ``'patches'``:
+         the flat patch values; ``'baked'``: the interpolated patch radiance (max_depth
+         -1); glossy and specular visible points gather as above (``integrators.display``)
+     * - preview_every
+       - int
+       - 0
+       - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set, after every
+         N of the particle phase's 8 ranges the image of the solution so far (smooth
+         display, one sample per pixel)
      * - hide_emitters
        - bool
        - false
@@ -176,7 +196,14 @@ class QMCLightTraceIntegrator(CoreIntegrator):
             raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
                              "sequence_depth=%d needs %d dimensions; sequence '%s' has %d"
                              % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
-        self.layers = Layers(self.max_depth)
+        self.read_display(p)
+        if self.display != "gather" and self.share_neighbors:
+            raise p.conflict(("share_neighbors", "display"), "share_neighbors=true with display='gather' only (it "
+                                                             "averages the gather samples of neighbouring pixels)")
+        if self.display == "baked" and self.max_depth >= 0:
+            raise p.conflict(("display", "max_depth"), "display='baked' with max_depth=-1 (it shows the solution's "
+                                                       "full radiance); display='smooth' reads any max_depth")
+        self.layers = Layers(self.max_depth, visible=self.display != "gather")
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
         self.paths_used, self.delta_e_history = 0, []
 
@@ -190,69 +217,34 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
         returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
         self.check_scene(scene, None)
-        self._particle_phase(scene, seed, report=report)
+        particle_phase(self, scene, self.patch_table(scene), seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
-    def _particle_phase(self, scene, seed, report=False, rendering=False, given=None):
-        """The particle phase (or ``given`` = (deposits, paths), traced elsewhere: a
-        distributed render's sum, :meth:`render_with_particles`); keeps its numpy
-        results (with ``report``, also ``reflected_radiance`` and ``triangle_radiance``,
-        which take a BSDF and emitter evaluation per patch) and returns (patch table, read
-        tables (tables, K, 2, 3)). The table is never kept on the integrator: it holds the
-        scene, which holds the integrator, a cycle that would keep every rendered scene
-        alive. ``rendering``: skip the phase where a render reads no stored light."""
-        table = self.patch_table(scene)
-        check_memory(self.plugin, self.layers, table.count, self.max_depth)
-        areas = table.areas_np
-        self.delta_e_history = []
-        shape = (self.layers.count, table.count, 2, 3)
-        if given is not None:
-            total, done = np.asarray(given[0], dtype=np.float64), int(given[1])
-            if total.shape != shape:
-                raise ValueError("qmc_lighttrace: the given particle deposits have shape %s; this scene and "
-                                 "max_depth need shape %s" % (total.shape, shape))
-        elif rendering and self.layers.tables == 0:   # max_depth <= 3: a render reads no stored light
-            total, done = np.zeros(shape), 0
-        elif self.epsilon is None:   # fixed N: chunks of CHUNK paths (the estimate is the same)
-            total, done = trace_range(self, scene, table, 0, self.samples, seed)[0], self.samples
-        else:
-            total, done = self._adaptive_phase(scene, table, seed)
-        self.paths_used = done
-        self.irradiance = total / max(done, 1) / areas[None, :, None, None]
-        self.reflected_radiance = self.triangle_radiance = None
-        if report:
-            reflectance, emission = self._side_values(scene, table)
-            self.reflected_radiance = self.irradiance.sum(axis=0) * reflectance
-            self.triangle_radiance = self.reflected_radiance + emission
-        self.triangle_areas = areas
-        self.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
-        return table, self.layers.tables_from(self.irradiance)
+    def solution_settings(self):
+        return (self.sequence, self.scramble, self.sequence_depth, self.samples, self.epsilon, self.batch,
+                self.patience, self.max_samples, self.max_depth, self.layers.max_hits, self.patch_size,
+                self.subdivide)
 
-    def _adaptive_phase(self, scene, table, seed):
-        """Batches of ``batch`` paths until the patch irradiances change by less than
-        ``epsilon`` ``patience`` times in a row (or ``max_samples``): (deposits, paths)."""
-        areas = table.areas_np
-        total, emitted = np.zeros((self.layers.count, table.count, 2, 3)), np.zeros(3)
-        done, below, previous = 0, 0, None
-        while done < self.max_samples:
-            n = min(self.batch, self.max_samples - done)
-            deposit, power = trace_range(self, scene, table, done, n, seed)
-            total, emitted, done = total + deposit, emitted + power, done + n
-            current = total.sum(axis=0) / done / (np.pi * areas[:, None, None])
-            norm = max(float(np.abs(emitted).mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
-            if previous is not None:
-                d = np.linalg.norm(current - previous, axis=2)
-                delta_e = np.sqrt(np.sum(d * d * areas[:, None]) / np.sum(areas)) / norm
-                self.delta_e_history.append(delta_e)
-                below = below + 1 if delta_e < float(self.epsilon) else 0
-                if below >= self.patience:
-                    break
-            previous = current
-        return total, done
+    def compute_solution(self, scene, table, seed, preview=None, **unused):
+        """The particle phase as a view-independent solution (read tables of particle hits
+        k >= 2; the direct light is added per point or per patch by the display)."""
+        def partial(tables, paths, done, total):
+            preview(Solution(tables, table.areas_np, self._meta(scene, table, seed, paths)), done, total)
+        tables, error = particle_phase(self, scene, table, seed, rendering=self.display == "gather",
+                                       preview=partial if preview is not None else None)
+        return Solution(tables, table.areas_np, self._meta(scene, table, seed, self.paths_used), error=error)
+
+    def _meta(self, scene, table, seed, paths):
+        return solution_meta(self, scene, table, seed, self.patch_size_for(scene), paths=int(paths),
+                             sequence=self.sequence)
+
+    def patch_size_for(self, scene):
+        """``patch_size``, or by default the scene's diagonal / 24."""
+        return self.patch_size if self.patch_size is not None else default_patch_size(scene)
 
     def patch_table(self, scene):
         """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
-        return MeshTable(scene, self.plugin, h=self.patch_size, subdivide=self.subdivide)
+        return MeshTable(scene, self.plugin, h=self.patch_size_for(scene), subdivide=self.subdivide)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):
@@ -275,28 +267,22 @@ class QMCLightTraceIntegrator(CoreIntegrator):
         render)."""
         return self.render_task(scene, (deposits, paths), spp=spp, seed=seed)
 
-    def _side_values(self, scene, table):
-        """(f toward the normal on each side, emitted radiance along it), (K, 2, 3) each,
-        at each patch's centroid: f = rho / pi on purely diffuse patches, else 0."""
-        si = table.surface_interaction(dr.arange(mi.UInt32, table.count), mi.Point2f(1.0 / 3.0, 1.0 / 3.0))
-        emitter, bsdf = si.emitter(scene), si.bsdf()
-        diffuse = Surfaces(scene).diffuse(si, True)
-        f, e = [], []
-        for z in (1.0, -1.0):
-            si.wi = mi.Vector3f(0, 0, z)
-            f.append(np.array(reflectance_toward(bsdf, si, diffuse), dtype=np.float64).T)
-            e.append(np.array(emitter.eval(si, emitter != None), dtype=np.float64).T)  # noqa: E711
-        return np.stack(f, axis=1), np.stack(e, axis=1)
-
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
         check_gather_lanes(self.plugin, frame, self.gather_samples)
-        table, tables = self._particle_phase(scene, frame.seed, rendering=True, given=frame.task)
-        tables = tables.reshape(-1, 3) if tables.size else np.zeros((2, 3))   # (never a width-1 scalar)
-        paths = CameraPaths(scene, table, Surfaces(scene), self.layers, mi.Color3f(*(mi.Float(tables[:, c])
-                                                                                    for c in range(3))),
-                            self.max_depth, self.mirror_depth, self.hide_emitters)
+        table = self.patch_table(scene)
+        if frame.task is not None:         # a distributed render: the particles were traced elsewhere
+            solution = Solution(particle_phase(self, scene, table, frame.seed, given=frame.task)[0], table.areas_np,
+                                self._meta(scene, table, frame.seed, self.paths_used))
+        else:
+            solution = self.solution_for(scene, frame.seed, table, frame.sensor)
+        if self.display != "gather":
+            return self.render_display(frame, solution, table)
+        tables = solution.tables.reshape(-1, 3) if solution.tables.size else np.zeros((2, 3))   # (never width 1)
+        stored = FlatTables(table, mi.Color3f(*(mi.Float(tables[:, c]) for c in range(3))))
+        paths = CameraPaths(scene, table, Surfaces(scene), self.layers, stored, self.max_depth, self.mirror_depth,
+                            self.hide_emitters)
         frame.camera_passes(frame.spp, 1)
         cam = frame.camera_pass()
         chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)

@@ -27,12 +27,15 @@ BYTES_PER_PATCH_LAYER = 6 * (8 + 8 + 8 + 4)
 
 
 class Layers:
-    """Layer layout for Mitsuba's ``max_depth`` D (-1: unbounded)."""
+    """Layer layout for Mitsuba's ``max_depth`` D (-1: unbounded); ``visible``: camera
+    paths read the stored light at the visible point itself (the display modes of a
+    solution), not only after a gather segment."""
 
-    def __init__(self, max_depth):
+    def __init__(self, max_depth, visible=False):
         self.unbounded = max_depth < 0
-        # the largest hit count a camera path can still read: k <= D - 2 (camera + gather segment)
-        self.max_hits = None if self.unbounded else max(max_depth - 2, 1)
+        # the largest hit count a camera path can still read: k <= D - 2 (camera + gather
+        # segment), D - 1 where the visible point reads
+        self.max_hits = None if self.unbounded else max(max_depth - (1 if visible else 2), 1)
         self.count = 2 if self.unbounded else self.max_hits
         self.tables = 1 if self.unbounded else max(self.count - 1, 0)
 

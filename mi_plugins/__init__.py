@@ -111,6 +111,23 @@ def register():
     return registry.register_all(check_variant())
 
 
+def solve(scene, integrator=None, seed=0):
+    """The view-independent solution (:class:`mi_plugins.solution.Solution`) of ``scene`` by
+    ``integrator`` ('ray_bundle' or 'qmc_lighttrace': a plugin dict, a loaded integrator,
+    or None for the scene's own) with ``seed``. A loaded integrator keeps it: its next
+    render of the scene with that seed, from any sensor, displays it without solving."""
+    from .integrators.solving import SolutionIntegrator
+    if integrator is None:
+        integrator = scene.integrator()
+    elif isinstance(integrator, dict):
+        integrator = mi.load_dict(integrator)
+    if not isinstance(integrator, SolutionIntegrator):
+        raise TypeError("mi_plugins.solve: integrator %s has no view-independent solution; use 'ray_bundle' or "
+                        "'qmc_lighttrace'" % (integrator.class_name() if hasattr(integrator, "class_name")
+                                               else type(integrator).__name__))
+    return integrator.solve(scene, seed)
+
+
 if _BARE:
     registered = {}
 else:

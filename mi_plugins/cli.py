@@ -45,7 +45,15 @@ def _parser():
     r.add_argument("-o", "--output", required=True, metavar="OUT.{exr,png,jpg}",
                    help="output image: .exr (float32 RGB with metadata), .png or .jpg/.jpeg (8-bit sRGB)")
     r.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the scene's sampler)")
-    r.add_argument("--passes", type=int, default=8, help="number of passes the spp are split into")
+    r.add_argument("--passes", type=int, default=None,
+                   help="number of passes the spp are split into (default 8; 1 where the integrator displays a "
+                        "view-independent solution: each pass has its own seed, hence its own solve)")
+    r.add_argument("--sensors", default=None, metavar="all|I,J,..",
+                   help="render these sensors of the scene (one image each: OUT with _<index> before its extension) "
+                        "from one solve")
+    r.add_argument("--preview-every", type=int, default=0, metavar="N",
+                   help="ray_bundle / qmc_lighttrace: write OUT every N steps of the solve (iterations, particle "
+                        "ranges) with the image of the solution so far")
     r.add_argument("--seed", type=int, default=0, help="0 .. 42948 (42947 above 38452 passes)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="name=value",
                    help="set an XML $parameter (repeatable)")
@@ -125,8 +133,10 @@ def _render(args):
     from . import exr, passes
     if args.spp is not None and args.spp < 1:
         raise ValueError("--spp %d: must be a positive integer (valid range: 1 or more)" % args.spp)
-    if args.passes < 1:
+    if args.passes is not None and args.passes < 1:
         raise ValueError("--passes %d: must be a positive integer (valid range: 1 or more)" % args.passes)
+    if args.preview_every < 0:
+        raise ValueError("--preview-every %d: valid range: 0 (no previews) or more" % args.preview_every)
     exr.check_output(args.output)  # before any work: a bad output path fails fast
     if not os.path.isfile(args.scene):
         raise FileNotFoundError("scene file '%s' does not exist" % args.scene)
@@ -139,25 +149,84 @@ def _render(args):
     if spp < 1:  # Mitsuba would die with SIGFPE
         raise ValueError("the scene's sampler has sample_count=%d; valid range: 1 or more (set it in the scene, "
                          "with -D spp=N where the scene reads $spp, or override it with --spp N)" % spp)
+    from . import views
+    sensors = list(range(len(scene.sensors()))) if args.sensors in (None, "all") else _indices(args.sensors)
+    views.sensor_list(scene, sensors)              # a bad index is refused before any work
+    if args.sensors is None:
+        sensors = [0]
     if args.workers is not None or args.scheduler is not None:
-        return _render_distributed(args, integrator, spp, defines)
-    result = passes.render_in_passes(scene, spp=args.spp, passes=args.passes, seed=args.seed, progress_bar=True)
-    meta = {"integrator": integrator,
-            "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
-            "passes": "%d/%d" % (result.passes_done, result.passes), "scene": os.path.abspath(args.scene)}
-    if result.iterations:
-        meta["iterations"] = "%d/%d" % (result.iterations_done, result.iterations)
-    exr.save(args.output, result.image, meta)
-    state = "interrupted after" if result.interrupted else "finished"
-    iterations = ", %s iterations" % meta["iterations"] if result.iterations else ""
-    print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
-          % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, args.output))
-    return 130 if result.interrupted and result.empty else 0
+        return _render_distributed(args, integrator, spp, defines, sensors)
+    from .distributed.plan import keeps_solution
+    display = getattr(scene.integrator(), "display", "gather") != "gather"
+    keeps = display or (args.sensors is not None and keeps_solution(scene.integrator()))
+    count = args.passes if args.passes is not None else (1 if keeps else 8)
+    _previews(scene.integrator(), args)
+    code = 0
+    for k in sensors:
+        out = args.output if args.sensors is None else frame_path(args.output, k)
+        result = passes.render_in_passes(scene, spp=args.spp, passes=count, seed=args.seed, progress_bar=True,
+                                         sensor=k)
+        meta = {"integrator": integrator, "sensor": str(k),
+                "spp": str(result.spp_done), "seed": str(args.seed), "seconds": "%.3f" % result.seconds,
+                "passes": "%d/%d" % (result.passes_done, result.passes), "scene": os.path.abspath(args.scene)}
+        if result.iterations:
+            meta["iterations"] = "%d/%d" % (result.iterations_done, result.iterations)
+        exr.save(out, result.image, meta)
+        state = "interrupted after" if result.interrupted else "finished"
+        iterations = ", %s iterations" % meta["iterations"] if result.iterations else ""
+        print("%s %d/%d passes (%d spp%s, %.2f s); wrote %s"
+              % (state, result.passes_done, result.passes, result.spp_done, iterations, result.seconds, out))
+        if result.interrupted:
+            return 130 if result.empty else 0
+    return code
 
 
-def _render_distributed(args, integrator, spp, defines):
-    """``render --workers N`` / ``--scheduler ADDRESS``: the render split into tasks on Dask."""
+def _indices(text):
+    try:
+        return [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ValueError("--sensors %s: valid: 'all' or sensor indices separated by commas, e.g. 0,2" % text)
+
+
+def frame_path(output, index):
+    """OUT.exr -> OUT_<index>.exr: the image of sensor ``index``."""
+    stem, ext = os.path.splitext(output)
+    return "%s_%d%s" % (stem, index, ext)
+
+
+def _previews(integrator, args):
+    """With --preview-every, the integrator writes the output file with the image of its
+    solution every N steps of a solve."""
+    if not args.preview_every:
+        return
+    from . import exr
+    if not hasattr(integrator, "preview_every") or (integrator.plugin == "ray_bundle"
+                                                    and integrator.display == "gather"):
+        raise ValueError("--preview-every: the scene's integrator has no view-independent solve to preview "
+                         "(qmc_lighttrace has; ray_bundle has with display 'smooth', 'patches' or 'baked')")
+    integrator.preview_every = int(args.preview_every)
+
+    def write(image, done, total):
+        exr.save(args.output, __import__("numpy").array(image), {"preview": "%d/%d" % (done, total)})
+        print("preview %d/%d: wrote %s" % (done, total, args.output), flush=True)
+    integrator.preview_callback = write
+
+
+def _render_distributed(args, integrator, spp, defines, sensors):
+    """``render --workers N`` / ``--scheduler ADDRESS``: the render split into tasks on Dask
+    (with --sensors: one task per sensor, the solution computed once and shipped to all)."""
     from . import distributed, exr
+    if args.sensors is not None:
+        with distributed.connect(args.workers, args.scheduler) as client:
+            result = distributed.render_views(args.scene, spp, sensors=sensors, client=client, seed=args.seed,
+                                              params=defines)
+        for k, image in zip(sensors, result.images):
+            exr.save(frame_path(args.output, k), image, {"integrator": integrator, "sensor": str(k),
+                                                          "spp": str(spp), "seed": str(args.seed)})
+        print("finished %d views on %d workers (%d solve(s), %.2f s); wrote %s"
+              % (len(result.images), result.workers, result.solves, result.seconds,
+                 frame_path(args.output, sensors[0]) + (" ..." if len(sensors) > 1 else "")))
+        return 130 if result.interrupted else 0
     if args.workers is not None and args.workers < 1:
         raise ValueError("--workers %d: valid range: 1 or more" % args.workers)
     if args.tasks is not None and args.tasks < 1:

@@ -90,6 +90,8 @@ class MeshTable:
         back_of = np.full(self.front_count, self.NONE, dtype=np.uint32)
         back_of[backs] = self.front_count + np.arange(len(backs))
         self._back_of = mi.UInt32(back_of)
+        #: per patch (fronts, then backs): the front patch it belongs to, and its side (1: back)
+        self.front_of_np = np.concatenate([np.arange(self.front_count), backs]).astype(np.int64)
         self.count = self.front_count + len(backs)
         # per-patch arrays: the fronts, then the backs (copies of their fronts)
         cat = lambda key: (lambda a: np.concatenate([a, a[backs]]))(np.concatenate([part[key] for part in parts]))
@@ -114,6 +116,10 @@ class MeshTable:
         self.points_np = np.concatenate([part["points"] for part in parts])
         self.shape_index_np = np.concatenate([shape_index, shape_index[backs]])
         tri = cat("triangle")
+        front = slice(0, self.front_count)
+        #: numpy geometry of the front patches (mi_plugins.patchfield): corners of mesh
+        #: triangles, kind, uv bounds and frame columns of analytic cells
+        self.triangles_np, self.kind_np = tri[front], cat("kind")[front]
         self.p0 = mi.Point3f(*tri[:, 0].T)
         self.e1 = mi.Vector3f(*(tri[:, 1] - tri[:, 0]).T)
         self.e2 = mi.Vector3f(*(tri[:, 2] - tri[:, 0]).T)
@@ -126,6 +132,7 @@ class MeshTable:
         bounds = cat("bounds")
         self.bounds = tuple(mi.Float(bounds[:, k]) for k in range(4))
         frame = cat("frame")
+        self.bounds_np, self.frame_np = bounds[front], frame[front]
         self.frame = [mi.Float(frame[:, k]) for k in range(frame.shape[1])]
         self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
         self.surface_normal = mi.Normal3f(*surface_normals.T)   # the surface's (Mitsuba's si.n)

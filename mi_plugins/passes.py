@@ -81,8 +81,9 @@ def _iterative(integrator):
     return isinstance(getattr(integrator, "progress", None), Progress)
 
 
-def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, callback=None):
-    """Render ``scene`` with ``spp`` samples split into ``passes`` passes.
+def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, callback=None, sensor=0):
+    """Render ``scene`` (from its sensor ``sensor``: an index or a sensor) with ``spp``
+    samples split into ``passes`` passes.
 
     ``callback(passes_done, passes)`` is called after each pass; ``progress_bar`` shows a tqdm
     bar when tqdm is installed (counting iterations for iterative integrators, passes
@@ -115,7 +116,8 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
     try:
         for k, part in enumerate(parts):
             try:
-                img = np.array(mi.render(scene, spp=part, seed=int(seed) * SEED_STRIDE + k), dtype=np.float64)
+                img = np.array(mi.render(scene, sensor=sensor, spp=part, seed=int(seed) * SEED_STRIDE + k),
+                               dtype=np.float64)
             except Exception:
                 # Mitsuba's C++ integrators catch SIGINT themselves, cancel the render and
                 # re-raise the signal; the cancelled render may surface as an exception.
@@ -151,7 +153,7 @@ def render_in_passes(scene, spp=None, passes=8, seed=0, progress_bar=False, call
         if iterative:
             integrator.progress_callback = None
     if accum is None:
-        film = scene.sensors()[0].film()
+        film = (scene.sensors()[sensor] if isinstance(sensor, int) else sensor).film()
         size = film.crop_size()
         accum, weight = np.zeros((size[1], size[0], 3)), 1.0
     return PassResult((accum / weight).astype(np.float32), sum(parts[:done]), done, len(parts),

@@ -24,6 +24,8 @@ STREAMS = {
     "particles": 9,     # qmc_lighttrace's sequence randomisation
     "direct": 10,       # ray_bundle's shared direct light of diffuse patches
     "tasks": 11,        # render seeds of the chain tasks of a distributed ray_bundle render
+    "solution": 12,     # the direct light of the patches of a view-independent solution
+    "display": 13,      # camera paths of the display modes of a solution
 }
 
 

@@ -103,6 +103,8 @@ TABLE = {
         "patch_size": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
         "subdivide": BOOL(),
         "hide_emitters": BOOL(),
+        "display": CHOICE(("gather", "smooth", "patches", "baked")),
+        "preview_every": INT(0, good=[0, 4]),
     },
     "stochastic_ray": {
         "iterations": INT(1, hi=1 << 20, good=[1, 32]),
@@ -131,6 +133,8 @@ TABLE = {
         "delta_surfaces": CHOICE(("refuse", "camera_only")),
         "adaptive": BOOL(),
         "point_sources": BOOL(),
+        "display": CHOICE(("gather", "smooth", "patches", "baked")),
+        "preview_every": INT(0, good=[0, 4]),
     },
     "phong": {
         "diffuse_reflectance": TEXTURE(GOOD_TEXTURES + [0.8], extra_bad=[0.9]),       # 0.9 + ks 0.2 > 1
@@ -457,6 +461,9 @@ def test_rules_between_parameters_name_both():
         ("ray_bundle", {"direction_sequence": "halton", "stratify_chains": True},
          ("stratify_chains", "direction_sequence")),
         ("qmc_lighttrace", {"sequence": "halton", "sequence_depth": 200}, ("sequence_depth", "sequence")),
+        ("qmc_lighttrace", {"display": "smooth", "share_neighbors": True}, ("share_neighbors", "display")),
+        ("qmc_lighttrace", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
+        ("ray_bundle", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
         ("phong", {"diffuse_reflectance": 0.7, "specular_reflectance": 0.5},
          ("diffuse_reflectance", "specular_reflectance")),
         ("separable", {"target_radiance": 0.4, "emission": Ref("lamp")}, ("target_radiance", "emission")),

@@ -142,7 +142,7 @@ class Estimator:
         d = dr.gather(mi.Vector3f, state.dirs, chain)
         rng = mi.PCG32(cam.count, initstate=rng_seed, initseq=mi.UInt64(dr.arange(mi.UInt32, cam.count)))
         path = specular_chain(scene, cam.ray, rng, max_depth=depth, hide_emitters=self.hide_emitters)
-        si = scene.ray_intersect(path.ray, path.reached)
+        si = path.si if path.si is not None else scene.ray_intersect(path.ray, path.reached)
         valid = path.reached & si.is_valid()
         used = path.depth + 1
         hi = self.order_limit(used)

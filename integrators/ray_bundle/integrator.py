@@ -5,15 +5,19 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
-from mi_plugins.integrators.core import CoreIntegrator
+from mi_plugins.integrators import display
+from mi_plugins.integrators.core import Frame
+from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.ray_bundle import checks, split
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
 from mi_plugins.integrators.ray_bundle import frozen
+from mi_plugins.integrators.ray_bundle import limits
 from mi_plugins.integrators.ray_bundle.limits import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
-from mi_plugins.meshtable import default_patch_size, patch_parameters, scene_bounds
+from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters, scene_bounds
 from mi_plugins.params import Params
+from mi_plugins.solution import Solution
 
 #: the chains of the default (fewer where they would need over a quarter of the memory)
 DEFAULT_CHAINS = 64
@@ -29,7 +33,7 @@ STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
 
 
-class RayBundleIntegrator(CoreIntegrator):
+class RayBundleIntegrator(SolutionIntegrator):
     r"""
     .. _integrator-ray_bundle:
 
@@ -170,6 +174,26 @@ class RayBundleIntegrator(CoreIntegrator):
          patch's value, the shared running mean of its direct light: far less noise
          (RMSE halved in the furnace sphere mesh), exact only where the radiance is
          constant per patch (the analytic constant-radiance scenes)
+     * - display
+       - string
+       - ``'gather'``
+       - how the image is made: ``'gather'`` (the estimate above: the bundles' radiance
+         reflected at each pixel's visible point, renders solved anew); ``'smooth'``,
+         ``'patches'``, ``'baked'``: from the view-independent solution (the irradiance
+         every patch side receives from the bundles, averaged over chains and iterations:
+         ``mi_plugins.solution``), kept for every later render of the scene with the same
+         seed, whatever the sensor or spp. ``'smooth'``: direct light by next-event
+         estimation plus the solution interpolated from per-vertex values;
+         ``'patches'``: the flat patch values; ``'baked'``: the interpolated patch
+         radiance (max_depth -1); glossy and specular visible points gather through to
+         the next diffuse surface (``integrators.display``). There ``spp`` is the display's
+         camera samples per pixel and the solve runs ``iterations`` global iterations
+     * - preview_every
+       - int
+       - 0
+       - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set and a
+         display from the solution, every N averaged iterations of a solve the image of
+         the solution so far (one sample per pixel)
      * - adaptive
        - bool
        - true
@@ -244,6 +268,10 @@ class RayBundleIntegrator(CoreIntegrator):
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
         self.point_sources = p.bool("point_sources", True)
+        self.read_display(p)
+        if self.display == "baked" and self.max_depth >= 0:
+            raise p.conflict(("display", "max_depth"), "display='baked' with max_depth=-1 (it shows the solution's "
+                                                       "full radiance); display='smooth' reads any max_depth")
         self.step_cache = STEP_CACHE      # the frozen steps of the last renders (shared, bounded)
 
     def orders(self):
@@ -264,7 +292,11 @@ class RayBundleIntegrator(CoreIntegrator):
     def iteration_count(self, spp):
         """Steps of a render with ``spp``: ``iterations * spp`` global iterations (each
         advances every chain), plus with ``average_diffuse`` the final gathering's passes
-        (one per averaged iteration). An extended burn-in adds steps (see ``adaptive``)."""
+        (one per averaged iteration). An extended burn-in adds steps (see ``adaptive``).
+        Other displays: ``iterations`` for the solve (none when it is kept), then the
+        display's passes."""
+        if self.display != "gather":
+            return self.counts(1)[0] + display.pass_layout(int(spp), 1)[1]
         total, burn_in = self.counts(spp)
         return total + (total - burn_in if self.average_diffuse else 0)
 
@@ -284,22 +316,37 @@ class RayBundleIntegrator(CoreIntegrator):
         checks.check_emitters(self.plugin, scene, self.first_shot)
 
     def render_frame(self, frame):
-        # no garbage collection during a render: a Mitsuba object of an earlier scene freed
-        # between two frozen steps changes the instance registry that the steps recorded
+        self._guarded(self._render_frame, frame.rollback, frame)
+
+    def _guarded(self, run, undo, *args):
+        """``run(*args)`` with frozen steps: no garbage collection meanwhile (a Mitsuba object
+        of an earlier scene freed between two frozen steps changes the instance registry
+        that the steps recorded), and where a step cannot be recorded ``undo()`` and again
+        with plain steps."""
         collect = gc.isenabled()
         gc.disable()
         try:
-            self._render_frame(frame)
+            return run(*args)
         except frozen.FreezeFailed:
             self.step_cache.failed()      # this scene and these settings: plain steps
-            frame.rollback()
-            self._render_frame(frame)
+            undo()
+            return run(*args)
         finally:
             if collect:
                 gc.enable()
 
+    def patch_table(self, scene):
+        """The patches of ``scene`` (checked against the memory first), with back sides."""
+        h = self.patch_size_for(scene)
+        limits.check_patches(limits.predicted_patches(scene, h, self.subdivide), available_memory())
+        return MeshTable(scene, self.plugin, h=h, back_sides=True, subdivide=self.subdivide)
+
     def _render_frame(self, frame):
-        run = Run(self, frame, available_memory(), DEFAULT_CHAINS)
+        table = self.patch_table(frame.scene)
+        if self.display != "gather" and frame.task is None:
+            self._render_solution(frame, table)
+            return
+        run = Run(self, frame, available_memory(), DEFAULT_CHAINS, table)
         task = frame.task              # a distributed render's part (split.py), or None
         if run.gather_only:          # a distributed render's gathering task: the averages are given
             run.average.load(*task.average)
@@ -316,6 +363,49 @@ class RayBundleIntegrator(CoreIntegrator):
             frame.result = run.average.numpy()
         elif run.average is not None and self.progress.averaged > 0:
             run.final_gathering(steps, self.progress.averaged)
+
+    # ------------------------------------------------------------------ view-independent solutions
+    def solution_settings(self):
+        return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
+                self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.max_depth,
+                self.adaptive, self.point_sources)
+
+    def _render_solution(self, frame, table):
+        """A render in a display mode: the solution (kept, or solved now), then its display."""
+        scene = frame.scene
+        film = frame.film
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        passes = display.pass_layout(frame.spp, (frame.width + 2 * border) * (frame.height + 2 * border))[1]
+        total, burn_in = self.counts(1)
+        steps = self.steps(total, burn_in, total + passes)
+        solution = self.solution_for(scene, frame.seed, table, frame.sensor, steps=steps)
+        if steps.state.interrupted:
+            return
+        self.render_display(frame, solution, table, steps)
+
+    def compute_solution(self, scene, table, seed, preview=None, sensor=None, steps=None):
+        """The bundles' irradiance per patch side, averaged over chains and the averaged
+        iterations (``iterations``, whatever the spp: :mod:`.irradiance`)."""
+        return self._guarded(self._compute_solution, lambda: None, scene, table, seed, preview, sensor, steps)
+
+    def _compute_solution(self, scene, table, seed, preview, sensor, steps):
+        frame = Frame(scene, sensor if sensor is not None else scene.sensors()[0], 1, seed, self.plugin)
+        run = Run(self, frame, available_memory(), DEFAULT_CHAINS, table, solve_only=True)
+        directions = DirectionStream(self.direction_sequence, run.layout.chains,
+                                     seeds.numpy_rng(seed, "directions"), self.stratify_chains,
+                                     self.bidirectional, run.total + 1)
+        steps = steps if steps is not None else self.steps(run.total, run.burn_in)
+        if preview is not None:
+            run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.window)
+        run.run(steps, directions)
+        return self._solution(run, scene, table, seed)
+
+    def _solution(self, run, scene, table, seed):
+        tables, error = run.irradiance.numpy()
+        meta = solution_meta(self, scene, table, seed, self.patch_size_for(scene), chains=run.layout.chains,
+                             iterations=int(run.total + run.extended), averaged=int(self.progress.averaged))
+        return Solution(tables, table.areas_np[:table.front_count], meta, error=error,
+                        direct_in_tables=not self.first_shot)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):

@@ -20,8 +20,8 @@ from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
 from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
 from mi_plugins.integrators.ray_bundle.frozen import FrozenStep, fingerprint, freezable, jit_leaves, own_arrays
+from mi_plugins.integrators.ray_bundle.irradiance import IrradianceAverage
 from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
-from mi_plugins.meshtable import MeshTable
 
 
 @dataclass
@@ -49,34 +49,40 @@ def touch(block):
 
 
 class Run:
-    """The state of one render of ``integ`` into ``frame``; ``available``: bytes of memory."""
+    """The state of one render of ``integ`` into ``frame``; ``available``: bytes of memory.
+    ``table``: the scene's patches; ``solve_only``: the iterations of a view-independent
+    solution (``irradiance``), no camera pass."""
 
-    def __init__(self, integ, frame, available, default_chains):
+    def __init__(self, integ, frame, available, default_chains, table, solve_only=False):
         self.integ, self.frame, split = integ, frame, frame.task
-        scene, spp = frame.scene, frame.spp
+        scene, spp = frame.scene, 1 if solve_only else frame.spp
+        self.solve_only = solve_only
+        self.after = None            # after(averaged iterations so far), called after each averaged step
         self.gather_only = split is not None and split.mode == "gather"
         limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
-        h = integ.patch_size_for(scene)
-        limits.check_patches(limits.predicted_patches(scene, h, integ.subdivide), available)
-        table = MeshTable(scene, integ.plugin, h=h, back_sides=True, subdivide=integ.subdivide)
         film = frame.film
         border = film.rfilter().border_size() if film.sample_border() else 0
-        per_chain = (frame.width + 2 * border) * (frame.height + 2 * border)
+        per_chain = 0 if solve_only else (frame.width + 2 * border) * (frame.height + 2 * border)
         chains = (split.chains if split is not None and split.chains else
                   integ.chains or limits.default_chains(default_chains, sides * table.count, integ.resolution,
                                                         available, orders))
         self.layout = layout = ChainLayout(table, chains, sides, orders)
-        self.group = limits.sampler_group(frame.sensor.sampler(), chains,
-                                          limits.camera_group(chains, per_chain, available))
+        self.group = chains if solve_only else limits.sampler_group(frame.sensor.sampler(), chains,
+                                                                    limits.camera_group(chains, per_chain, available))
         if not self.gather_only:
             limits.check(layout, integ.resolution, per_chain, self.group, available)
         self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
                                    integ.point_sources)
-        self.estimator = ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters, integ.max_depth)
-        self.estimator.group = integ.camera_group = self.group
+        self.estimator = None if solve_only else ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters,
+                                                                            integ.max_depth)
+        if self.estimator is not None:
+            self.estimator.group = integ.camera_group = self.group
         self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
-                        if integ.average_diffuse else None)
+                        if integ.average_diffuse and not solve_only else None)
+        self.irradiance = (IrradianceAverage(layout, self.transport.weight, seeds.pcg(layout.slots, frame.seed,
+                                                                                     "patches", 1))
+                           if solve_only else None)
         self.total, self.burn_in = integ.counts(spp)
         self.window = self.total - self.burn_in
         # a finite depth is exact once every order is there: no growth to watch
@@ -84,7 +90,7 @@ class Run:
         # without averaging, every averaged iteration images everything; with it, the
         # iterations image only the patches that are not averaged (none to image when all
         # are) and the final gathering the averaged ones
-        self.image_iterations = self.average is None or not self.average.covers_all
+        self.image_iterations = not solve_only and (self.average is None or not self.average.covers_all)
         self.sources = {"chain": ChainSources(layout, skip=self.average)}
         if self.average is not None:
             lo = 0 if integ.max_depth < 0 or (integ.first_shot and not integ.gather_nee) else 1
@@ -92,13 +98,14 @@ class Run:
         self.seed = frame.seed
         for name in (["iterations"] if self.image_iterations else []) + (["final"] if self.average else []):
             touch(frame.camera_block(name))   # made now: a frozen step must find them among its inputs
-        own_arrays(table, self.transport.direct, self.average, self.estimator)
+        own_arrays(table, self.transport.direct, self.average, self.estimator, self.irradiance)
         # the frame's blocks (not its committed copies, which change; nor the film, whose
         # storage, untouched until the end, would be made opaque by the first step)
-        self.leaves = jit_leaves(self.transport, self.estimator, self.average, self.trace, frame._blocks)
-        self.key = self._key(integ, frame, table)
+        self.leaves = jit_leaves(self.transport, self.estimator, self.average, self.trace, self.irradiance,
+                                 frame._blocks)
         # the camera sampler is used inside a step only by the hand-off of delta lobes
-        self.uses_sampler = self.estimator.handoff.needed
+        self.uses_sampler = self.estimator is not None and self.estimator.handoff.needed
+        self.key = self._key(integ, frame, table)
         self.advance, self.image = integ.step_cache.get(self.key, freezable(scene, frame.sensor)
                                                         or not self.uses_sampler)
         # the steps' inputs as every step leaves them (evaluated, literals made opaque, e.g. in
@@ -113,9 +120,8 @@ class Run:
                 t.finite, t.environment is not None, t.direct.covers_all if t.direct else None,
                 t.direct.any if t.direct else None, avg is not None and (avg.covers_all, avg.estimate),
                 self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
-                integ.estimate, integ.point_sources, self.estimator.handoff.needed, int(film.flags()), frame.width,
-                frame.height,
-                tuple(sorted(frame._blocks)), self.image_iterations)
+                integ.estimate, integ.point_sources, self.uses_sampler, int(film.flags()), frame.width,
+                frame.height, tuple(sorted(frame._blocks)), self.image_iterations, self.solve_only)
 
     def __hash__(self):
         return hash(self.key)
@@ -135,9 +141,12 @@ class Run:
                 average.add(state.dirs, self.integ._averaged_radiance(state), incoming)
             if self.trace is not None:
                 self.trace.record(state, index)
+            if self.irradiance is not None:
+                self.irradiance.add(state.dirs, incoming)
         new = transport.reflect(state, incoming, new_dirs)
         dr.eval(new, incoming, transport.mutable(), average.state if average is not None else None,
-                self.trace.state if self.trace is not None else None)
+                self.trace.state if self.trace is not None else None,
+                self.irradiance.state if self.irradiance is not None else None)
         return new, incoming
 
     def _image(self, cam, state, incoming, sources, chain_offset, rng_seed, block):
@@ -165,7 +174,8 @@ class Run:
         the burn-in goes on, up to the cap (``self.extended``: the iterations added)."""
         integ, frame, window = self.integ, self.frame, self.window
         passes = window * (int(self.image_iterations) + int(self.average is not None))
-        self.camera_passes(passes)
+        if passes:
+            self.camera_passes(passes)
         state = self.transport.initial(chain_directions(directions.next()))
         dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
         cap, used, burn_in, self.extended = convergence.EXTENSION_CAP * self.total, 0, self.burn_in, 0
@@ -191,14 +201,15 @@ class Run:
             steps.count = burn_in + window
             steps.state.total += burn_in + window
             steps.state.burn_in = used + burn_in
-            for reset in (self.average, self.trace):
+            for reset in (self.average, self.trace, self.irradiance):
                 if reset is not None:
                     reset.reset()
             if self.image_iterations:
                 frame.camera_block("iterations").clear()
                 touch(frame.camera_block("iterations"))
             frame.commit()
-            self.camera_passes(passes)
+            if passes:
+                self.camera_passes(passes)
 
     def _iterations(self, steps, directions, state, burn_in):
         """Run ``steps``' iterations, the first ``burn_in`` of them not averaged; returns
@@ -213,7 +224,8 @@ class Run:
                 self.image_pass(last[0], incoming, "chain", m, "iterations")
             last[0] = new
 
-        return last[0] if self.integ.run_steps(self.frame, steps, step) else None
+        after = (lambda m: self.after(m - burn_in + 1) if m >= burn_in else None) if self.after else None
+        return last[0] if self.integ.run_steps(self.frame, steps, step, after) else None
 
     def final_gathering(self, steps, count):
         """The image of the averaged diffuse patches, the direct light and the seen

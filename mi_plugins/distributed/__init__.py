@@ -129,3 +129,59 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
         image = np.zeros((size[1], size[0], 3), dtype=np.float32)
     return DistributedResult(image, int(round(weight * spp_per_weight)), len(found), len(image_phase.tasks),
                              time.perf_counter() - t0, stopped, workers, len(first.tasks) if first else 0)
+
+
+@dataclass
+class ViewsResult:
+    images: list           # (H, W, C) float32 per sensor, in the order asked for
+    sensors: list          # the sensor indices
+    seconds: float
+    interrupted: bool
+    workers: int
+    solves: int            # 1 where one solution serves every view, else 0
+
+
+def render_views(scene_file, spp, *, sensors="all", client=None, seed=0, params=None, progress=True):
+    """Render the sensors ``sensors`` ('all' or indices) of ``scene_file``, one task per
+    sensor on ``client`` (as :func:`render`). A finite-element integrator that keeps its
+    solution (``plan.keeps_solution``) solves once, in a task of its own; the solution is
+    shipped once to every worker and every view displays it. Returns a :class:`ViewsResult`."""
+    import mitsuba as mi
+    require_dask()
+    params = {k: str(v) for k, v in (params or {}).items()}
+    scene = mi.load_file(scene_file, **params)
+    if scene.integrator() is None:
+        raise ValueError("scene '%s' has no integrator" % scene_file)
+    from mi_plugins.views import sensor_list
+    sensors = list(range(len(scene.sensors()))) if sensors == "all" else [int(k) for k in sensors]
+    sensor_list(scene, sensors)                       # a bad index is refused before any task
+    if int(spp) < 1:
+        raise ValueError("spp=%s: valid range: 1 or more" % spp)
+    shipped = bundle(scene_file, params)
+    keeps = plan.keeps_solution(scene.integrator())
+
+    def on(client):
+        from mi_plugins.distributed.dask_engine import run_tasks, set_variant_on
+        t0 = time.perf_counter()
+        workers = max(len(client.scheduler_info().get("workers", {})), 1)
+        threads = getattr(client, "mi_plugins_threads", None)
+        variant = mi.variant()
+        set_variant_on(client, variant)
+        remote = client.scatter(shipped, broadcast=True, hash=False)
+        shared = None
+        if keeps:
+            found, stopped = run_tasks(client, plan.run_solve, [plan.Task("solve", 0, seed=int(seed))],
+                                       ((remote, params, variant), threads), progress, "solve")
+            if stopped:
+                raise KeyboardInterrupt
+            shared = client.scatter(found[0], broadcast=True, hash=False)
+        tasks = plan.view_tasks(sensors, spp, seed)
+        found, stopped = run_tasks(client, plan.run_view, tasks, ((remote, params, variant), threads, shared),
+                                   progress, "views")
+        images = [found[t.index] for t in tasks if t.index in found]
+        return ViewsResult(images, [t.start for t in tasks if t.index in found], time.perf_counter() - t0, stopped,
+                           workers, int(keeps))
+    if client is not None:
+        return on(client)
+    with connect() as own:
+        return on(own)

@@ -37,12 +37,13 @@ DEFAULT_TASKS = 16
 
 @dataclass(frozen=True)
 class Task:
-    kind: str          # 'pass' (also qmc_lighttrace's gather passes), 'particles', 'chains', 'gathering'
+    kind: str          # 'pass' (also qmc_lighttrace's gather passes), 'particles', 'chains', 'gathering',
+    #                    'solve', 'view'
     index: int         # position in the merge order
     spp: int = 0       # pass: samples per pixel (its merge weight); chains: the render's spp;
     #                    gathering: final-gathering passes (its merge weight)
     seed: int = 0      # Mitsuba seed of the task's render; particles: the render seed
-    start: int = 0     # particles: first path of the range
+    start: int = 0     # particles: first path of the range; view: the sensor index
     count: int = 0     # particles: paths in the range; chains: chains of the group
 
     def describe(self, total):
@@ -53,6 +54,11 @@ class Task:
                                                                   self.start + self.count - 1)
         if self.kind == "chains":
             return "chain group %d of %d (%d chains, seed %d)" % (self.index + 1, total, self.count, self.seed)
+        if self.kind == "solve":
+            return "the solve (seed %d)" % self.seed
+        if self.kind == "view":
+            return "view %d of %d (sensor %d, %d spp, seed %d)" % (self.index + 1, total, self.start, self.spp,
+                                                                   self.seed)
         return "gathering %d of %d (%d passes, seed %d)" % (self.index + 1, total, self.spp, self.seed)
 
 
@@ -249,3 +255,38 @@ def run_particles(shipped, params, variant, task, threads=None):
     """The deposits of one range of qmc_lighttrace's particle phase."""
     scene = _scene(shipped, params, variant, threads)
     return scene.integrator().trace_particles(scene, task.start, task.count, task.seed), shape_order(scene)
+
+
+def keeps_solution(integrator):
+    """The integrator displays one view-independent solution for every view (the package's
+    finite-element integrators in a display mode, and qmc_lighttrace's particles)."""
+    from mi_plugins.integrators.solving import SolutionIntegrator
+    return isinstance(integrator, SolutionIntegrator) and (integrator.display != "gather"
+                                                          or integrator.plugin == "qmc_lighttrace")
+
+
+def view_tasks(sensors, spp, seed):
+    """One task per sensor index, every one with the render seed (one solution for all)."""
+    return [Task("view", k, spp=int(spp), seed=int(seed), start=int(s)) for k, s in enumerate(sensors)]
+
+
+def run_solve(shipped, params, variant, task, threads=None):
+    """The scene's solution, as the bytes of its file (shipped once to every view task)."""
+    scene = _scene(shipped, params, variant, threads)
+    try:
+        return scene.integrator().solve(scene, task.seed).to_bytes()
+    except Exception as error:
+        raise _portable(error) from None
+
+
+def run_view(shipped, params, variant, task, threads=None, solution=None):
+    """The image (float32) of one sensor, from the shipped ``solution`` where there is one."""
+    import mitsuba as mi
+    from mi_plugins.solution import Solution
+    scene = _scene(shipped, params, variant, threads)
+    try:
+        if solution is not None:
+            scene.integrator().use_solution(Solution.from_bytes(solution, scene))
+        return np.array(mi.render(scene, sensor=task.start, spp=task.spp, seed=task.seed), dtype=np.float32)
+    except Exception as error:
+        raise _portable(error) from None

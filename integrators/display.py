@@ -1,0 +1,151 @@
+"""Display modes of a view-independent solution (``mi_plugins.solution.Solution``), shared
+by ``ray_bundle`` and ``qmc_lighttrace``: the image of any camera from one solve.
+
+Every camera ray follows mirrors and glass (``camera.specular_chain``) to its visible
+point x. Where x is *purely diffuse* (``qmc_surfaces``), the mode decides what x sends
+toward the eye, with no gather ray:
+
+- ``smooth``: x's direct light by next-event estimation (one light and one BSDF sample,
+  MIS: exact at shadow boundaries) plus rho(x) / pi times the solution's irradiance
+  interpolated at x from its vertex values (``mi_plugins.patchfield``);
+- ``patches``: rho(x) / pi times the flat irradiance of x's patch side, direct light
+  included (the solution as it is, for inspection);
+- ``baked``: the reflected radiance interpolated from the vertex values of the patches'
+  flat radiance (what :meth:`Solution.to_ply` exports and a mesh viewer shows).
+
+Elsewhere (glossy, mixed, bump-mapped x) the pixel falls back to the gather of
+``qmc_gather``: one light sample and BSDF samples whose paths continue to the next
+purely diffuse surface y, which adds its direct light and reads the solution there
+(interpolated for ``smooth`` and ``baked``, flat for ``patches``). The emission seen
+along the camera path is added as it is. With a finite ``max_depth`` every read takes
+the table of the segments the path has left (:class:`ReadTables`).
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins import seeds
+from mi_plugins.integrators.core import coverage
+from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
+from mi_plugins.integrators.qmc_particles import patch_side
+from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward, side_of
+from mi_plugins.sampling import direct_light
+
+#: the display modes; 'gather' is each integrator's own estimate
+DISPLAYS = ("gather", "smooth", "patches", "baked")
+#: camera lanes of one display pass at the most (a render of more is split into passes)
+MAX_PASS_LANES = 1 << 22
+
+
+def _color(values):
+    """A Color3f from numpy (..., 3) values (flattened), never of width 1."""
+    flat = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    if len(flat) < 2:
+        flat = np.concatenate([flat, np.zeros((2 - len(flat), 3))])
+    return mi.Color3f(*(mi.Float(flat[:, c]) for c in range(3)))
+
+
+class ReadTables:
+    """Which read table a path may read: ``tables`` = T (None: unbounded, one table);
+    table t holds the light of 2 + ``offset`` .. t + 2 + ``offset`` ... segments from
+    the lights, shifted by ``offset`` = -1 where the tables carry the direct light too."""
+
+    def __init__(self, tables, direct_in_tables=False):
+        self.tables, self.shift = tables, 1 if direct_in_tables else 0
+
+    def read_table(self, budget):
+        """(table index, readable) for paths that may still add ``budget`` segments."""
+        budget = mi.Int32(budget) + self.shift
+        if self.tables is None:
+            return dr.zeros(mi.UInt32, dr.width(budget)), budget >= 2
+        top = dr.minimum(budget, self.tables + 1)
+        return mi.UInt32(dr.maximum(top - 2, 0)), top >= 2
+
+
+class SmoothTables:
+    """The read tables interpolated from their vertex values (T, V, 2, 3)."""
+
+    def __init__(self, table, field, vertex_tables):
+        self.table, self.field = table, field
+        self.vertices = max(field.vertex_count, 1)
+        self.values = _color(vertex_tables)
+
+    def __call__(self, hit, index, active):
+        patch = self.table.patch(hit)
+        ids, w = self.field.weights(self.table, hit, patch, active)
+        base = index * self.vertices
+        side = side_of(hit)
+        return sum((w[k] * dr.gather(mi.Color3f, self.values, (base + ids[k]) * 2 + side, active)
+                    for k in range(4)), mi.Color3f(0.0))
+
+
+class View:
+    """A solution read by one render: ``mode`` (one of DISPLAYS but 'gather'), the
+    scene's patch ``table`` (the solution's patch numbering)."""
+
+    def __init__(self, solution, table, mode):
+        self.mode, self.table, self.solution = mode, table, solution
+        self.surfaces = Surfaces(table.scene)
+        self.all_diffuse = bool(np.all(self.surfaces.diffuse_np))
+        t = solution.tables.shape[0]
+        self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
+        self.adds_direct = not solution.direct_in_tables
+        if mode == "patches":
+            self.stored = FlatTables(table, _color(solution.tables))
+            direct = solution.direct if solution.direct is not None and self.adds_direct else np.zeros((1, 2, 3))
+            self.direct = _color(direct)
+        else:
+            self.stored = SmoothTables(table, solution.field, solution.vertex_values("tables"))
+        if mode == "baked":
+            reflected = solution.vertex_values("radiance") - solution.vertex_values("emission")
+            self.baked = SmoothTables(table, solution.field, reflected[None])
+
+    def visible(self, scene, si, bsdf, budget, active, rng):
+        """What purely diffuse visible points ``si`` reflect toward the eye (their emission
+        comes with the camera path); ``budget``: the segments the path may still add."""
+        f = reflectance_toward(bsdf, si, active)
+        if self.mode == "baked":
+            return self.baked(si, mi.UInt32(0), active)
+        index, readable = self.read.read_table(budget)
+        irradiance = dr.select(readable, self.stored(si, index, active & readable), 0.0)
+        if self.mode == "patches":
+            irradiance += dr.gather(mi.Color3f, self.direct, patch_side(self.table, si), active)
+            return f * irradiance
+        value = f * irradiance
+        if self.adds_direct:       # one light and one BSDF sample, MIS
+            value += direct_light(scene, si, bsdf, mi.Point2f(rng.next_float32(), rng.next_float32()), active,
+                                  (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())))
+        return value
+
+
+def pass_layout(spp, pixels):
+    """(camera samples per pixel and pass, passes): spp = their product, one pass at
+    most MAX_PASS_LANES lanes (the largest divisor of spp that fits)."""
+    fit = max(1, MAX_PASS_LANES // max(pixels, 1))
+    per_pixel = max(d for d in range(1, min(spp, fit) + 1) if spp % d == 0)
+    return per_pixel, spp // per_pixel
+
+
+def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None):
+    """The image of ``frame`` from ``view`` (spp camera samples per pixel, in passes);
+    ``steps``: the render's step driver (one step per pass), or None."""
+    scene, table = frame.scene, view.table
+    paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
+    film = frame.film
+    border = film.rfilter().border_size() if film.sample_border() else 0
+    per_pixel, passes = pass_layout(frame.spp, (frame.width + 2 * border) * (frame.height + 2 * border))
+    frame.camera_passes(per_pixel, passes)
+    for k in (range(passes) if steps is None else steps.second_stage(passes)):
+        cam = frame.camera_pass()
+        seed = seeds.stream(frame.seed, "display", k)
+        chain, si, bsdf, used, active = paths.visible_points(cam, seed)
+        diffuse = view.surfaces.diffuse(si, active)
+        rng = seeds.pcg(cam.count, seed, "camera_path", 2)
+        value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng)
+        if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
+            light, gathered = paths.gather(cam, seed, gather_samples, si, bsdf, used, active & ~diffuse)
+            value += light + gathered
+        value = chain.emission + chain.throughput * value
+        frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
+        dr.eval(frame.state())
+        frame.commit()

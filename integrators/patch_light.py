@@ -1,0 +1,94 @@
+"""Per-patch light of a view-independent solution, shared by ``ray_bundle`` and
+``qmc_lighttrace``: what every patch side receives directly from the lights, and the
+BSDF and emission that turn irradiance into the radiance it sends.
+
+- :func:`direct_irradiance`: the irradiance E_d (the shading frame's, as the solution's
+  tables store it) of every patch side from the emitters, by next-event estimation at
+  ``samples`` uniformly random points of the patch: one light sample and one
+  cosine-distributed direction per point, combined by multiple importance sampling
+  (the reflection of a white Lambertian surface there, times pi). Unbiased; its
+  standard error per patch side comes with it.
+- :func:`side_values`: f toward each side's normal (rho / pi on purely diffuse patches,
+  0 elsewhere) and the emitted radiance along it, at each patch's centroid: the flat
+  per-patch radiance Le + f (E_d + E) of the 'patches' display and of exported meshes.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins import seeds
+from mi_plugins.sampling import direct_light
+from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward
+
+#: random points per patch side of the direct irradiance
+DIRECT_SAMPLES = 8
+#: lanes of one kernel at the most (patch sides x samples are done in chunks)
+CHUNK = 1 << 22
+
+_WHITE = {}
+
+
+def white():
+    """A white Lambertian BSDF reflecting on both sides (one per variant, made once)."""
+    variant = mi.variant()
+    if variant not in _WHITE:
+        _WHITE[variant] = mi.load_dict({"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
+            "type": "rgb", "value": 1.0}}})
+    return _WHITE[variant]
+
+
+def _side_points(table, index, side, rng):
+    """Surface interactions at a uniformly random point of front patch ``index``, seen
+    from the side ``side`` (0: the one its normal points to): the frame turned to face
+    that side, si.wi along its normal."""
+    si = table.surface_interaction(index, mi.Point2f(rng.next_float32(), rng.next_float32()))
+    sign = 1.0 - 2.0 * mi.Float(side)
+    si.n = mi.Normal3f(si.n * sign)
+    si.sh_frame = mi.Frame3f(si.n)
+    si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+    return si
+
+
+def direct_irradiance(scene, table, seed, samples=DIRECT_SAMPLES):
+    """(mean, standard error), numpy (K, 2, 3) each: the direct irradiance of every front
+    patch side of ``table`` (module docstring)."""
+    k = table.front_count
+    total, squares = np.zeros((k * 2, 3)), np.zeros((k * 2, 3))
+    if not scene.emitters() or not k:
+        return total.reshape(k, 2, 3), total.reshape(k, 2, 3)
+    lanes = k * 2 * samples
+    bsdf = white()
+    for start in range(0, lanes, CHUNK):        # chunks of lanes, not of rays
+        n = min(CHUNK, lanes - start)
+        lane = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+        slot = lane // samples                  # patch side: 2 x patch + side
+        rng = mi.PCG32(n, initstate=dr.opaque(mi.UInt64, seeds.stream(seed, "solution")),
+                       initseq=mi.UInt64(lane))
+        si = _side_points(table, slot // 2, slot % 2, rng)
+        light = mi.Point2f(rng.next_float32(), rng.next_float32())
+        value = dr.pi * direct_light(scene, si, bsdf, light, mi.Bool(True),
+                                     (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())))
+        sums, sq = dr.zeros(mi.Color3f, k * 2), dr.zeros(mi.Color3f, k * 2)
+        dr.scatter_add(sums, value, slot)
+        dr.scatter_add(sq, value * value, slot)
+        dr.eval(sums, sq)
+        total += np.array(sums, dtype=np.float64).T
+        squares += np.array(sq, dtype=np.float64).T
+    mean = total / samples
+    var = np.maximum(squares / samples - mean * mean, 0.0) / max(samples - 1, 1)
+    return mean.reshape(k, 2, 3), np.sqrt(var).reshape(k, 2, 3)
+
+
+def side_values(scene, table):
+    """(f toward the normal of each side, emitted radiance along it), numpy (K, 2, 3)
+    each, at each front patch's centroid."""
+    k = table.front_count
+    si = table.surface_interaction(dr.arange(mi.UInt32, k), mi.Point2f(1.0 / 3.0, 1.0 / 3.0))
+    emitter, bsdf = si.emitter(scene), si.bsdf()
+    diffuse = Surfaces(scene).diffuse(si, True)
+    f, e = [], []
+    for z in (1.0, -1.0):
+        si.wi = mi.Vector3f(0, 0, z)
+        f.append(np.array(reflectance_toward(bsdf, si, diffuse), dtype=np.float64).T)
+        e.append(np.array(emitter.eval(si, emitter != None), dtype=np.float64).T)  # noqa: E711
+    return np.stack(f, axis=1), np.stack(e, axis=1)

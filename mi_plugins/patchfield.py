@@ -1,0 +1,260 @@
+"""Smooth fields over patches: per-vertex values from patch averages, and their
+interpolation at surface points.
+
+A finite-element solution holds one value per patch side: the patch's average. The
+smooth display and the exported meshes show the field reconstructed from them:
+
+- **vertices**: the corners of the patches (mesh triangles and their sub-triangles; the
+  uv corners of the cells of analytic shapes), welded where they coincide in space and
+  the patches' normals agree within :data:`WELD_ANGLE` (a crease, e.g. a floor meeting a
+  wall, keeps a vertex per surface), across sub-triangles, triangles and shapes alike;
+- **vertex values**: at each vertex, an area-weighted least-squares plane through the
+  values of the patches that share it, taken at their centroids, evaluated at the
+  vertex; where those do not span the plane (the corner of a quad), through the
+  patches that share a vertex with them too (exact for a field linear in position on a
+  flat surface, at interior, border and corner vertices alike; the area-weighted mean
+  only where even those do not span it); where every patch used has a value of one
+  sign, the vertex keeps that sign;
+- **interpolation**: a point of a triangle patch takes its barycentric combination of
+  the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
+
+Values are arrays (K, C) over the front patches of a :class:`mi_plugins.meshtable.MeshTable`
+(any C channels: sides, RGB, tables); :class:`PatchField` fits them (numpy, vectorised
+over vertices) and :meth:`PatchField.weights` gives, inside kernels, the four vertex
+indices and weights of each hit.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins import tessellation
+
+#: patches whose normals differ by more than this (degrees) at a shared corner keep
+#: vertices of their own
+WELD_ANGLE = 45.0
+#: corners closer than this (relative to the scene's extent) are one vertex
+WELD_TOLERANCE = 1e-6
+#: a vertex's least-squares plane needs its normal matrix's smallest eigenvalue above
+#: this share of its trace (else the area-weighted mean)
+MIN_SPREAD = 1e-3
+
+
+def _analytic_corners(table):
+    """(K, 4, 3) world corners (u0, v0), (u1, v0), (u0, v1), (u1, v1) and (K, 3) centres
+    of the analytic cells (zeros for mesh patches)."""
+    kind, bounds, frame = table.kind_np, table.bounds_np, table.frame_np
+    k = len(kind)
+    corners, centres = np.zeros((k, 4, 3)), np.zeros((k, 3))
+    cells = np.flatnonzero(kind != 0)
+    if not len(cells):
+        return corners, centres
+    u0, u1, v0, v1 = (bounds[cells, j] for j in range(4))
+    us = [u0, u1, u0, u1, 0.5 * (u0 + u1)]
+    vs = [v0, v0, v1, v1, 0.5 * (v0 + v1)]
+    columns = [mi.Float(frame[cells, j]) for j in range(frame.shape[1])]
+    for j, (u, v) in enumerate(zip(us, vs)):
+        uv = mi.Point2f(mi.Float(u), mi.Float(v))
+        p, _ = tessellation.ShapeFrame.apply(columns, *tessellation.local_point(mi.UInt32(kind[cells]), uv))
+        p = np.array(p, dtype=np.float64).T.reshape(-1, 3)
+        if j < 4:
+            corners[cells, j] = p
+        else:
+            centres[cells] = p
+    return corners, centres
+
+
+def weld(points, normals, scale, angle=WELD_ANGLE):
+    """Vertex index (N,) of each corner ``points`` (N, 3) with patch normal ``normals``
+    (N, 3): corners within WELD_TOLERANCE x ``scale`` share a vertex when their normals
+    are within ``angle`` degrees of the first normal of the group (greedy rounds)."""
+    n = len(points)
+    if not n:
+        return np.zeros(0, np.int64)
+    cell = max(float(scale), 1e-30) * WELD_TOLERANCE * 4
+    keys = np.round(points / cell).astype(np.int64)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    vertex = np.full(n, -1, np.int64)
+    cos_limit, next_id = np.cos(np.radians(angle)), 0
+    while True:          # a few rounds: one per distinct normal at a point
+        left = np.flatnonzero(vertex < 0)
+        if not len(left):
+            return vertex
+        groups, first = np.unique(group[left], return_index=True)
+        leader = np.full(group.max() + 1, -1, np.int64)
+        leader[groups] = left[first]
+        lead = leader[group[left]]
+        join = np.einsum("ij,ij->i", normals[left], normals[lead]) >= cos_limit
+        join |= left == lead
+        ids = np.full(group.max() + 1, -1, np.int64)
+        ids[groups] = next_id + np.arange(len(groups))
+        vertex[left[join]] = ids[group[left[join]]]
+        next_id += len(groups)
+
+
+class PatchField:
+    """The vertices of the front patches of ``table`` and the fit of patch values to them."""
+
+    def __init__(self, table):
+        kind = table.kind_np
+        self.count = k = len(kind)
+        mesh = kind == 0
+        tri = table.triangles_np
+        cell_corners, cell_centres = _analytic_corners(table)
+        self.corners = np.where(mesh[:, None, None], np.concatenate([tri, tri[:, :1]], axis=1), cell_corners)
+        self.corner_count = np.where(mesh, 3, 4)
+        self.centroids = np.where(mesh[:, None], tri.mean(axis=1), cell_centres)
+        self.normals = table.normals_np[:k]
+        self.areas = table.areas_np[:k]
+        self.kind = kind
+        used = np.arange(4)[None, :] < self.corner_count[:, None]
+        patch_of = np.repeat(np.arange(k), 4).reshape(k, 4)[used]
+        points = self.corners[used]
+        extent = np.ptp(points, axis=0).max() if len(points) else 1.0
+        ids = weld(points, self.normals[patch_of], extent)
+        self.vertex_ids = np.zeros((k, 4), np.int64)
+        self.vertex_ids[used] = ids
+        self.vertex_count = int(ids.max()) + 1 if len(ids) else 0
+        self.vertex_positions = np.zeros((self.vertex_count, 3))
+        self.vertex_positions[ids] = points          # welded corners coincide
+        self._incidence = (patch_of, ids)
+        self._prepare_fit()
+        self._jit = None
+
+    # ------------------------------------------------------------------ fitting (numpy)
+    def _prepare_fit(self):
+        """Per vertex: the coefficients of its value in the values of the patches around it:
+        the least-squares plane through the patches sharing it or, where those do not span
+        the plane (a corner), through the patches sharing a vertex with them."""
+        patch, vertex = self._incidence
+        if not len(patch):
+            self._pairs = (patch, vertex, np.zeros(0))
+            return
+        coef, plane = self._plane_fit(patch, vertex)
+        weak = np.flatnonzero(~plane)
+        if len(weak):
+            wide_patch, wide_vertex = self._second_ring(weak)
+            wide_coef, wide_plane = self._plane_fit(wide_patch, wide_vertex)
+            use = wide_plane[wide_vertex]
+            keep = ~np.isin(vertex, weak[wide_plane[weak]])
+            patch, vertex, coef = (np.concatenate([a[keep], b[use]]) for a, b in
+                                   ((patch, wide_patch), (vertex, wide_vertex), (coef, wide_coef)))
+            plane[weak] = wide_plane[weak]
+        self._pairs = (patch, vertex, coef)
+        self.planes = plane           # per vertex: a plane was fitted (else the mean)
+
+    def _second_ring(self, vertices):
+        """(patch, vertex) pairs of the patches that share a vertex with a patch around each
+        of ``vertices``."""
+        patch, vertex = self._incidence
+        order = np.argsort(vertex, kind="stable")
+        patches_of, start = patch[order], np.searchsorted(vertex[order], np.arange(self.vertex_count + 1))
+
+        def around(targets, centres):
+            """(target, patch) for every patch around each vertex of ``centres``."""
+            counts = start[centres + 1] - start[centres]
+            before = np.repeat(np.cumsum(counts) - counts, counts)
+            index = np.repeat(start[centres], counts) + np.arange(counts.sum()) - before
+            return np.repeat(targets, counts), patches_of[index]
+        v1, p1 = around(vertices, vertices)                # the first ring
+        used = np.arange(4)[None, :] < self.corner_count[p1][:, None]
+        corners = np.unique(np.stack([np.repeat(v1, 4).reshape(-1, 4)[used], self.vertex_ids[p1][used]], axis=1),
+                            axis=0)                        # (vertex, a corner of a patch around it)
+        target, far = around(corners[:, 0], corners[:, 1])
+        pairs = np.unique(np.stack([far, target], axis=1), axis=0)
+        return pairs[:, 0], pairs[:, 1]
+
+    def _plane_fit(self, patch, vertex):
+        """(coefficient per pair, plane per vertex) of the area-weighted least-squares plane
+        at each vertex through the centroid values of its ``patch`` pairs (the mean where the
+        centroids do not span the plane)."""
+        v = self.vertex_count
+        n = np.zeros((v, 3))
+        np.add.at(n, vertex, self.normals[patch] * self.areas[patch, None])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+        t1 = np.cross(n, helper)
+        t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-30)
+        t2 = np.cross(n, t1)
+        size = np.sqrt(np.maximum(self.areas[patch], 1e-30))
+        offset = self.centroids[patch] - self.vertex_positions[vertex]
+        rows = np.stack([np.ones(len(patch)), np.einsum("ij,ij->i", offset, t1[vertex]) / size,
+                         np.einsum("ij,ij->i", offset, t2[vertex]) / size], axis=1)
+        weight = self.areas[patch]
+        normal_matrix = np.zeros((v, 3, 3))
+        np.add.at(normal_matrix, vertex, weight[:, None, None] * rows[:, :, None] * rows[:, None, :])
+        eig = np.linalg.eigvalsh(normal_matrix)
+        trace = np.maximum(np.trace(normal_matrix, axis1=1, axis2=2), 1e-300)
+        plane = eig[:, 0] > MIN_SPREAD * trace
+        inverse = np.zeros((v, 3, 3))
+        if plane.any():
+            inverse[plane] = np.linalg.inv(normal_matrix[plane])
+        # the plane's value at the vertex is a linear combination of the patch values
+        coef = np.einsum("pj,pj->p", inverse[vertex][:, 0, :], rows) * weight
+        total = np.zeros(v)
+        np.add.at(total, vertex, weight)
+        mean = weight / np.maximum(total[vertex], 1e-300)
+        return np.where(plane[vertex], coef, mean), plane
+
+    def fit(self, values):
+        """Vertex values (V, C) from patch values (K, C) (or (K, ...): trailing axes are
+        channels)."""
+        values = np.asarray(values, dtype=np.float64)
+        shape = values.shape[1:]
+        flat = values.reshape(self.count, -1)
+        patch, vertex, coef = self._pairs
+        out = np.zeros((self.vertex_count, flat.shape[1]))
+        np.add.at(out, vertex, coef[:, None] * flat[patch])
+        # a vertex keeps the sign every patch around it shares
+        lo = np.full_like(out, np.inf)
+        hi = np.full_like(out, -np.inf)
+        np.minimum.at(lo, vertex, flat[patch])
+        np.maximum.at(hi, vertex, flat[patch])
+        out = np.where(lo >= 0, np.maximum(out, 0.0), out)
+        out = np.where(hi <= 0, np.minimum(out, 0.0), out)
+        return out.reshape((self.vertex_count,) + shape)
+
+    def evaluate(self, vertex_values, patch, bary):
+        """numpy: the interpolated value at points of ``patch`` (N,) with weights ``bary``
+        (N, 4) (see :meth:`corner_weights_np`)."""
+        ids = self.vertex_ids[patch]
+        return np.einsum("nk,nk...->n...", bary, np.asarray(vertex_values)[ids])
+
+    def corner_weights_np(self, patch, points):
+        """numpy: the interpolation weights (N, 4) of world ``points`` of mesh patches."""
+        c = self.corners[patch]
+        e1, e2, d = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], points - c[:, 0]
+        a11, a12, a22 = (np.einsum("ij,ij->i", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
+        r1, r2 = np.einsum("ij,ij->i", d, e1), np.einsum("ij,ij->i", d, e2)
+        det = np.maximum(a11 * a22 - a12 * a12, 1e-300)
+        b1, b2 = (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det
+        return np.stack([1 - b1 - b2, b1, b2, np.zeros_like(b1)], axis=1)
+
+    # ------------------------------------------------------------------ kernels
+    def jit(self):
+        """The arrays kernels read (made once)."""
+        if self._jit is None:
+            ids = np.concatenate([self.vertex_ids, np.zeros((2, 4), np.int64)])  # (never width 1)
+            self._jit = [mi.UInt32(ids[:, j].astype(np.uint32)) for j in range(4)]
+        return self._jit
+
+    def weights(self, table, si, patch, active=True):
+        """Per lane: the four vertex indices (UInt32) and weights (Float) of hits ``si`` of
+        front patches ``patch`` (barycentric on triangles, bilinear in (u, v) on cells)."""
+        ids = [dr.gather(mi.UInt32, arr, patch, active) for arr in self.jit()]
+        kind = dr.gather(mi.UInt32, table.kind, patch, active)
+        p0 = dr.gather(mi.Point3f, table.p0, patch, active)
+        e1 = dr.gather(mi.Vector3f, table.e1, patch, active)
+        e2 = dr.gather(mi.Vector3f, table.e2, patch, active)
+        d = si.p - p0
+        a11, a12, a22, r1, r2 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2), dr.dot(d, e1), dr.dot(d, e2)
+        det = dr.maximum(a11 * a22 - a12 * a12, 1e-30)
+        b1 = dr.clip((a22 * r1 - a12 * r2) / det, 0.0, 1.0)
+        b2 = dr.clip((a11 * r2 - a12 * r1) / det, 0.0, 1.0 - b1)
+        u0, u1, v0, v1 = (dr.gather(mi.Float, b, patch, active) for b in table.bounds)
+        s = dr.clip((si.uv.x - u0) / dr.maximum(u1 - u0, 1e-30), 0.0, 1.0)
+        t = dr.clip((si.uv.y - v0) / dr.maximum(v1 - v0, 1e-30), 0.0, 1.0)
+        mesh = kind == 0
+        w = [dr.select(mesh, 1.0 - b1 - b2, (1.0 - s) * (1.0 - t)), dr.select(mesh, b1, s * (1.0 - t)),
+             dr.select(mesh, b2, (1.0 - s) * t), dr.select(mesh, 0.0, s * t)]
+        return ids, w
