@@ -22,6 +22,7 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins import seeds
+from mi_plugins.lights import pdf_emitter_direction, sample_emitter_direction
 from mi_plugins.integrators.camera import UNBOUNDED, specular_chain
 from mi_plugins.integrators.qmc_particles import patch_side
 from mi_plugins.integrators.qmc_surfaces import reflectance_toward
@@ -40,9 +41,10 @@ def mis(pdf_a, pdf_b):
 
 
 def light_sample(scene, si, bsdf, sample, active, bsdf_samples=1.0):
-    """One visibility-tested emitter sample reflected at ``si`` toward si.wi, MIS-weighted
-    against ``bsdf_samples`` BSDF samples (delta lights: weight 1)."""
-    ds, em_weight = scene.sample_emitter_direction(si, sample, True, active)
+    """One visibility-tested emitter sample (the package's, :mod:`mi_plugins.lights`)
+    reflected at ``si`` toward si.wi, MIS-weighted against ``bsdf_samples`` BSDF samples
+    (delta lights: weight 1)."""
+    ds, em_weight = sample_emitter_direction(scene, si, sample, active)
     ok = active & (ds.pdf > 0)
     f, pdf = bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), ok)
     w = dr.select(ds.delta, 1.0, mis(ds.pdf, bsdf_samples * pdf))
@@ -140,7 +142,7 @@ class CameraPaths:
             segment = used + 1
             # the emission seen, MIS-weighted against the previous vertex's light sample
             emitter = hit.emitter(scene, active)
-            light_pdf = scene.pdf_emitter_direction(prev, mi.DirectionSample3f(scene, hit, prev), active & ~prev_delta)
+            light_pdf = pdf_emitter_direction(scene, prev, mi.DirectionSample3f(scene, hit, prev), active & ~prev_delta)
             w = dr.select(prev_delta, 1.0, mis(prev_pdf, light_pdf))
             result += dr.select(active, beta * mi.Color3f(emitter.eval(hit, active)) * w, 0.0)
             go = active & hit.is_valid() & ~last & (segment < depth)

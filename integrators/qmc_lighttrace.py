@@ -151,6 +151,9 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
        - hide directly visible emitters as Mitsuba does: eye rays pass through area
          emitters and do not see the environment
 
+    Particles and light samples take textured ``area`` lights uniformly on their shape
+    (``mi_plugins.lights``: Mitsuba's own sampling of them is wrong on ``flip_normals``
+    rectangles and on meshes whose uv map does not cover the unit square once).
     Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
     ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.meshtable``).
     Refused before any work, by name: other shapes, participating media, emitters that

@@ -83,7 +83,11 @@ class StochasticRayIntegrator(CoreIntegrator):
     ``thinlens`` and ``batch`` (light paths connect to them); others (``orthographic``,
     ``radiancemeter``, ``irradiancemeter``, ``distant``) are refused, naming the sensor.
     **Refused:** participating media (use ``volpath``), integrators that call it per
-    camera ray (``aov``, ``moment``). Light splats go through the film's reconstruction
+    camera ray (``aov``, ``moment``), and a textured ``area`` light that Mitsuba samples
+    wrongly (on a ``flip_normals`` rectangle, or a mesh whose uv map does not cover the
+    unit square once) in a scene with mirror, glass or null surfaces, whose light the
+    camera sees through Mitsuba's ``volpath``. Light rays sample textured area lights
+    uniformly on their shape (``mi_plugins.lights``). Light splats go through the film's reconstruction
     filter, with the part of a wide filter beyond the crop window compensated
     (Mitsuba's ``ptracer`` darkens the border pixels there, by ~10 % with the default
     Gaussian filter).
@@ -130,6 +134,9 @@ class StochasticRayIntegrator(CoreIntegrator):
                     "(sample_direction) for this sensor: its directions form a delta distribution or it has no "
                     "aperture to connect to", "render it with 'path', or with 'ray_bundle' / 'qmc_lighttrace', "
                     "which trace camera rays")
+        if any(int(bsdf.flags()) & int(mi.BSDFFlags.Delta) for _, bsdf in support.bsdfs(scene)):
+            support.refuse_textured_lights_behind_handoff(
+                self.plugin, scene, "the camera through mirrors, glass and null surfaces")
 
     # ------------------------------------------------------------------ light rays
     def _emitted_power(self, scene, seed):

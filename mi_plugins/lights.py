@@ -1,17 +1,40 @@
-"""Light rays for the package's light tracers (``stochastic_ray``, ``qmc_lighttrace``).
+"""Light sampling for the package's integrators: light rays and next-event estimation.
 
-:func:`sample_light_rays` picks an emitter, then a ray leaving it and the power it
-carries, from five numbers in [0, 1): Mitsuba's ``Emitter.sample_ray`` for delta lights
-and the package's surface lights; for textured ``area`` lights a point uniform on the shape
-(``Shape.sample_position``) and a cosine-distributed direction, weighted by the
-radiance there (Mitsuba 3.9.1's ``area`` samples a textured radiance in the texture's
-uv space and maps it onto the shape through its uv parameterization: on a mesh whose uv
-map is not one-to-one, e.g. with seams, almost every sample is lost and the rays carry a
-few per mille of the light's power, docs/findings.md); for environment and directional lights (``envmap``, ``constant``,
-``sunsky``, ``directional``) a direction from ``sample_direction`` and a point of a disk
-across the scene's bounding sphere perpendicular to it. The latter replaces Mitsuba
-3.9.1's own ``envmap`` ray sampling, which tilts that disk when the map is rotated
-(``to_world``): the power of every ray is then wrong (docs/findings.md).
+Mitsuba 3.9.1's ``area`` light samples a spatially varying radiance (a bitmap, a
+checkerboard: any texture) in the texture's uv space and maps the sample onto the shape
+through its uv parameterization (``Shape.eval_parameterization``). That mapping loses
+light in two ways (docs/findings.md): on a mesh whose uv map does not cover the unit
+square exactly once (e.g. with seams) the samples that fall outside it, or on a
+triangle with the wrong area, are lost or wrongly weighted; and ``rectangle``'s
+parameterization ignores ``flip_normals``, so the lit side of a flipped rectangle gets
+(almost) no light samples and its dark side gets them. Every estimate below therefore
+samples these *textured area lights* uniformly in area on their shape
+(``Shape.sample_position``, which honours ``flip_normals``) and uses Mitsuba's own
+sampling for every other emitter.
+
+- :func:`sample_emitter_direction` / :func:`pdf_emitter_direction`: next-event
+  estimation, the counterparts of ``Scene.sample_emitter_direction`` /
+  ``pdf_emitter_direction`` (the emitter chosen as Mitsuba chooses it, its selection
+  probability included; the pdf is exactly the density the sampling draws, for MIS).
+  Used by ``sampling.direct_light`` (``ray_bundle``, ``qmc_lighttrace``'s diffuse
+  continuations) and ``qmc_lighttrace``'s final gathering.
+- :func:`sample_light_rays`: an emitter, a ray leaving it and the power it carries, from
+  five numbers in [0, 1), for the light tracers (``stochastic_ray``, ``qmc_lighttrace``):
+  Mitsuba's ``Emitter.sample_ray`` for delta lights and the package's surface lights;
+  for textured area lights a point uniform on the shape and a cosine-distributed
+  direction, weighted by the radiance there; for environment and directional lights
+  (``envmap``, ``constant``, ``sunsky``, ``directional``) a direction from
+  ``sample_direction`` and a point of a disk across the scene's bounding sphere
+  perpendicular to it. The latter replaces Mitsuba 3.9.1's own ``envmap`` ray sampling,
+  which tilts that disk when the map is rotated (``to_world``): the power of every ray
+  is then wrong (docs/findings.md).
+
+Textured area lights are handled one at a time, by direct calls on their own shape: a
+vcall over the shapes would trace every shape's ``sample_position``, which raises on
+instances and curves (``Shape::sample_position(): not implemented``). The other
+emitters' ``sample_ray`` is an evaluated vcall: a symbolic one traces every live
+emitter's, and a textured area light's raises for a checkerboard radiance
+(``Texture::sample_spectrum(): not implemented``).
 """
 import drjit as dr
 import mitsuba as mi
@@ -29,25 +52,121 @@ def bounding_sphere(scene):
     return mi.Point3f(*(float(c) for c in center)), float(np.linalg.norm(hi - lo)) * 0.5 * 1.001 + 1e-4
 
 
-def area_lights(scene):
-    """Per emitter index, whether it is Mitsuba's ``area`` light with a spatially varying
-    radiance (a texture, not one value: the lights whose own ray sampling goes through the
-    uv parameterization), as a Bool array; None where the scene has none."""
-    flags = [e.class_name() == "AreaLight" and "radiance.value" not in mi.traverse(e).keys()
-             for e in scene.emitters()]
-    return mi.Bool(flags) if any(flags) else None
+def textured_area_lights(scene):
+    """[(index, emitter, pmf)] of the scene's textured area lights: Mitsuba's ``area``
+    lights whose radiance varies over the surface (``EmitterFlags.SpatiallyVarying``, the
+    lights whose own sampling goes through the uv parameterization); ``pmf`` is the
+    probability Mitsuba's emitter selection gives them (sampling weight / sum of weights)."""
+    emitters = scene.emitters()
+    total = sum(float(e.sampling_weight()) for e in emitters)
+    return [(i, e, float(e.sampling_weight()) / total) for i, e in enumerate(emitters)
+            if e.class_name() == "AreaLight" and mi.has_flag(e.flags(), mi.EmitterFlags.SpatiallyVarying)]
+
+
+def mitsuba_samples_right(emitter):
+    """Whether Mitsuba 3.9.1's own sampling of a textured area light (scalar ``emitter``)
+    is right: its shape's uv parameterization maps the unit square onto the surface once,
+    with the surface's normals (``sphere``, ``disk``, ``cylinder``; a ``rectangle`` unless
+    flipped; a mesh whose uv triangles tile the unit square). Where it is not, what the
+    package hands to Mitsuba's integrators (``integrators.handoff``) is wrong too."""
+    shape = emitter.get_shape()
+    kind = shape.class_name()
+    if kind in ("Sphere", "Disk", "Cylinder"):
+        return True
+    if kind == "Rectangle":
+        return not shape.has_flipped_normals()
+    params = mi.traverse(shape) if shape.is_mesh() else {}
+    if "vertex_texcoords" not in params or dr.width(params["vertex_texcoords"]) == 0:
+        return False
+    uv = np.array(params["vertex_texcoords"], dtype=np.float64).reshape(-1, 2)
+    a, b, c = (uv[corner] for corner in np.array(params["faces"], dtype=np.int64).reshape(-1, 3).T)
+    area = 0.5 * np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]).sum()
+    if abs(area - 1.0) > 1e-3 or uv.min() < -1e-6 or uv.max() > 1.0 + 1e-6:
+        return False
+    g = (np.arange(32) + 0.5) / 32            # the uv triangles cover a grid of the square
+    u, v = np.meshgrid(g, g)
+    return bool(dr.all(shape.eval_parameterization(mi.Point2f(u.ravel(), v.ravel()), active=True).is_valid()))
+
+
+def _on_shape(emitter, si, sample, active):
+    """A direction toward a point uniform in area on ``emitter``'s shape (a scalar
+    emitter: direct calls), as (DirectionSample3f, radiance / pdf); the pdf in solid angle,
+    without the emitter's selection probability."""
+    ps = emitter.get_shape().sample_position(si.time, sample, active)
+    d = ps.p - si.p
+    dist2 = dr.squared_norm(d)
+    dist = dr.sqrt(dist2)
+    d = d / dist
+    cos = -dr.dot(d, ps.n)
+    ok = active & (cos > 0) & (ps.pdf > 0) & (dist2 > 0)
+    pdf = dr.select(ok, ps.pdf * dist2 / cos, 0.0)
+    it = mi.SurfaceInteraction3f(ps, si.wavelengths)
+    it.wi = it.to_local(-d)
+    radiance = mi.Color3f(emitter.eval(it, ok))
+    ds = mi.DirectionSample3f(ps.p, ps.n, ps.uv, ps.time, pdf, mi.Bool(False), d, dist, mi.EmitterPtr(emitter))
+    return ds, dr.select(ok, radiance / pdf, 0.0)
+
+
+def sample_emitter_direction(scene, si, sample, active=True, test_visibility=True):
+    """Next-event estimation from ``si``: (DirectionSample3f, radiance / pdf), as
+    ``scene.sample_emitter_direction(si, sample, test_visibility, active)`` returns them
+    (the pdf in solid angle with the emitter's selection probability; both zero where the
+    sample fails or is occluded), textured area lights sampled uniformly on their shape."""
+    lights = textured_area_lights(scene)
+    if not lights:
+        return scene.sample_emitter_direction(si, sample, test_visibility, active)
+    active = mi.Bool(active)
+    index, weight, reused = scene.sample_emitter(sample.x, active)
+    own = [(active & (index == i), e, pmf) for i, e, pmf in lights]
+    theirs = active
+    for lanes, _, _ in own:
+        theirs = theirs & ~lanes
+    ds, spec = scene.sample_emitter_direction(si, sample, test_visibility, theirs)
+    spec = mi.Color3f(spec)
+    mine = mi.Bool(False)
+    for lanes, emitter, pmf in own:
+        ds_e, spec_e = _on_shape(emitter, si, mi.Point2f(reused, sample.y), lanes)
+        ds_e.pdf = ds_e.pdf * pmf
+        ds, spec = dr.select(lanes, ds_e, ds), dr.select(lanes, spec_e * weight, spec)
+        mine = mine | lanes
+    if test_visibility:
+        occluded = scene.ray_test(si.spawn_ray_to(ds.p), mine & (ds.pdf > 0))
+        spec = dr.select(occluded, 0.0, spec)
+        ds.pdf = dr.select(occluded, 0.0, ds.pdf)
+    return ds, spec
+
+
+def pdf_emitter_direction(scene, si, ds, active=True):
+    """The solid-angle density with which :func:`sample_emitter_direction` from ``si``
+    draws ``ds`` (e.g. ``mi.DirectionSample3f(scene, hit, si)`` of a BSDF sample's hit),
+    the emitter's selection probability included: ``scene.pdf_emitter_direction`` for
+    every emitter but the textured area lights."""
+    lights = textured_area_lights(scene)
+    if not lights:
+        return scene.pdf_emitter_direction(si, ds, active)
+    active = mi.Bool(active)
+    own = [(active & (ds.emitter == mi.EmitterPtr(e)), e, pmf) for _, e, pmf in lights]
+    theirs = active
+    for lanes, _, _ in own:
+        theirs = theirs & ~lanes
+    pdf = scene.pdf_emitter_direction(si, ds, theirs)
+    for lanes, emitter, pmf in own:
+        cos = -dr.dot(ds.d, ds.n)
+        ok = lanes & (cos > 0)
+        area_pdf = emitter.get_shape().pdf_position(ds, ok)
+        pdf = dr.select(lanes, dr.select(ok, area_pdf * dr.square(ds.dist) / cos * pmf, 0.0), pdf)
+    return pdf
 
 
 def _area_light_rays(emitter, position, u_direction, active):
-    """Rays of ``area`` lights: a point uniform on the shape, a cosine-distributed
-    direction around its normal, the power L pi / pdf (unbiased for any radiance)."""
-    shape = emitter.get_shape()
-    ps = shape.sample_position(0.0, position, active)
+    """Rays of a textured area light (a scalar emitter): a point uniform on the shape, a
+    cosine-distributed direction around its normal, the power L pi / pdf (unbiased for
+    any radiance)."""
+    ps = emitter.get_shape().sample_position(0.0, position, active)
     local = mi.warp.square_to_cosine_hemisphere(u_direction)
     si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
     si.wi = local
-    si.shape = shape
-    radiance = emitter.eval(si, active)
+    radiance = mi.Color3f(emitter.eval(si, active))
     weight = dr.select(active & (ps.pdf > 0), radiance * dr.pi / ps.pdf, 0.0)
     return mi.Ray3f(ps.p, mi.Frame3f(ps.n).to_world(local)), weight
 
@@ -60,22 +179,27 @@ def sample_light_rays(scene, u_emitter, u_position, u_direction, active=True):
     """(ray, power) of light rays: ``u_emitter`` (Float) chooses the emitter,
     ``u_position`` and ``u_direction`` (Point2f) the ray. The power (Color3f) includes the
     probability of the emitter's choice; zero where ``active`` is false."""
+    active = mi.Bool(active)
     index, choice_weight, u_reused = scene.sample_emitter(u_emitter, active)
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
     position = mi.Point2f(u_reused, u_position.y)
-    area = area_lights(scene)
-    if area is None or not dr.all(area):
-        # (not where every emitter is a textured area light: Mitsuba's sample_ray of some
-        # textures, e.g. checkerboard, raises 'not implemented')
-        ray, power = emitter.sample_ray(0.0, 0.5, position, u_direction, active)
-    if area is not None:
-        uniform = active & dr.gather(mi.Bool, area, index, active)
-        ray_a, power_a = _area_light_rays(emitter, position, u_direction, uniform)
-        if dr.all(area):
-            ray, power = ray_a, power_a
-        else:
-            ray = dr.select(uniform, ray_a, ray)
-            power = dr.select(uniform, power_a, power)
+    lights = textured_area_lights(scene)
+    own = [(active & (index == i), e) for i, e, _ in lights]
+    theirs = active
+    for lanes, _ in own:
+        theirs = theirs & ~lanes
+    ray, power = dr.zeros(mi.Ray3f, dr.width(index)), dr.zeros(mi.Color3f, dr.width(index))
+    if len(lights) < len(scene.emitters()):
+        # an evaluated vcall: it runs only the emitters of its active lanes, where a symbolic
+        # one traces the sample_ray of every live emitter, textured area lights of this or
+        # any other scene included (measured: no slower on the Cornell box and a scene of
+        # seven emitters)
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, False):
+            ray, power = emitter.sample_ray(0.0, 0.5, position, u_direction, theirs)
+        power = mi.Color3f(power)
+    for lanes, light in own:
+        ray_a, power_a = _area_light_rays(light, position, u_direction, lanes)
+        ray, power = dr.select(lanes, ray_a, ray), dr.select(lanes, power_a, power)
     if has_infinite(scene):
         center, r = bounding_sphere(scene)
         it = dr.zeros(mi.Interaction3f)

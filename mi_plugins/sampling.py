@@ -9,11 +9,14 @@
   the simulated-emission estimators.
 - :func:`direct_light`: next-event estimation reflected by a BSDF: one visibility-tested
   light sample, or a light and a BSDF sample combined by MIS (``qmc_lighttrace``'s
-  final gathering, ``ray_bundle``'s first shot).
+  diffuse continuations, ``ray_bundle``'s first shot), through the package's emitter
+  sampling (:mod:`mi_plugins.lights`: right on textured area lights).
 """
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+from mi_plugins.lights import pdf_emitter_direction, sample_emitter_direction
 
 HEMISPHERE_STRATEGIES = ("uniform", "cosine")
 
@@ -47,7 +50,7 @@ def hashed_rng(si, salt):
 def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=None):
     """Direct illumination reflected at ``si`` toward ``si.wi`` (next-event estimation).
 
-    Without ``bsdf_sample``: one emitter sample (``scene.sample_emitter_direction``,
+    Without ``bsdf_sample``: one emitter sample (:func:`~mi_plugins.lights.sample_emitter_direction`,
     visibility tested), f * Le * G / pdf. With ``bsdf_sample = (u, (u1, u2))``: that
     light sample plus one BSDF sample whose ray is traced to the emission it hits,
     combined by multiple importance sampling (power heuristic), which keeps the
@@ -55,7 +58,7 @@ def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=No
     ``active`` is false. ``ctx``: the BSDF context (default: every lobe; e.g. only the
     smooth lobes where the delta lobes are estimated otherwise)."""
     ctx = mi.BSDFContext() if ctx is None else ctx
-    ds, em_weight = scene.sample_emitter_direction(si, light_sample, True, active)
+    ds, em_weight = sample_emitter_direction(scene, si, light_sample, active)
     active_l = active & (ds.pdf > 0)
     if bsdf_sample is None:
         f = bsdf.eval(ctx, si, si.to_local(ds.d), active_l)
@@ -69,7 +72,7 @@ def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=No
     hit = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active_b)
     emitter = hit.emitter(scene, active_b)        # a miss sees the environment emitter, if any
     emitted = mi.Color3f(emitter.eval(hit, active_b))
-    light_pdf = scene.pdf_emitter_direction(si, mi.DirectionSample3f(scene, hit, si), active_b)
+    light_pdf = pdf_emitter_direction(scene, si, mi.DirectionSample3f(scene, hit, si), active_b)
     delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
     weight_b = dr.select(delta, 1.0, _power_heuristic(bs.pdf, light_pdf))
     return result + dr.select(active_b, mi.Color3f(bsdf_weight) * emitted * weight_b, 0.0)

@@ -144,3 +144,23 @@ def sensors_of(scene, sensor):
     if isinstance(sensor, int):
         return scene.sensors()[sensor]
     return sensor
+
+
+def refuse_textured_lights_behind_handoff(integrator, scene, why_handoff):
+    """Raise :class:`Unsupported` for a textured area light that Mitsuba 3.9.1 samples
+    wrongly (:func:`mi_plugins.lights.mitsuba_samples_right`: a ``flip_normals``
+    rectangle, a mesh whose uv map does not tile the unit square) in a scene whose light
+    the integrator hands to Mitsuba's ``volpath`` (``why_handoff``: which surfaces):
+    ``volpath``'s light samples of it are wrong (docs/findings.md)."""
+    from mi_plugins.lights import mitsuba_samples_right, textured_area_lights
+    for _, emitter, _ in textured_area_lights(scene):
+        if not mitsuba_samples_right(emitter):
+            shape = emitter.get_shape()
+            raise Unsupported(
+                integrator, "area", "the textured 'area' emitter of shape '%s' (%s)" % (
+                    shape.id(), "a flip_normals rectangle" if shape.class_name() == "Rectangle" else
+                    "its uv map does not cover the unit square once"),
+                "the light reaching %s is estimated by Mitsuba's 'volpath', whose light samples of such a light "
+                "are wrong (Mitsuba samples a textured radiance through the shape's uv map)" % why_handoff,
+                "render it with 'qmc_lighttrace', or give the light an untextured radiance, an unflipped "
+                "rectangle or a mesh whose uv map covers the unit square once")

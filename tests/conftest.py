@@ -100,8 +100,8 @@ def _power_rule(request):
 #: every iteration, and in a long process Dr.Jit's per-operation cost grows (measured: the
 #: same ray_bundle test 14 s alone, 120 s at the end of the suite); Mitsuba's C++
 #: integrators, which the other files mostly use, are not affected
-FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py", "test_core.py", "test_conformance.py",
-         "test_cli.py")
+FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py", "test_textured_lights.py",
+         "test_core.py", "test_conformance.py", "test_cli.py")
 
 
 #: the extended tier: tests that take longer than the default run can afford (node ids,

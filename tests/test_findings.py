@@ -1,6 +1,6 @@
 """The standalone reproducers of the findings of docs/findings.md (docs/findings/*.py): every one
 compiles, needs only mitsuba/drjit/numpy and the standard library, carries a complete
-report in its docstring and is listed in docs/findings/README.md; the two fastest run end
+report in its docstring and is listed in docs/findings/README.md; the fastest run end
 to end (a few seconds) and still reproduce their finding."""
 import ast
 import os
@@ -17,7 +17,7 @@ ALLOWED = {"mitsuba", "drjit", "numpy", "gc", "os", "subprocess", "sys", "tempfi
 
 
 def test_there_are_reproducers():
-    assert len(SCRIPTS) >= 11, SCRIPTS
+    assert len(SCRIPTS) >= 12, SCRIPTS
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
@@ -71,3 +71,17 @@ def test_poisoning_reproducer_runs_and_still_reproduces():
     assert lines["1"].endswith("renders") and lines["6"].endswith("renders"), out
     assert "raises: [BlackBodySpectrum]" in lines["3"] and "raises: [BlackBodySpectrum]" in lines["8"], out + UPDATE
     assert lines["9"].endswith("renders") and lines["10"].endswith("renders"), out
+
+
+def test_flip_normals_reproducer_runs_and_still_reproduces():
+    out = run("area_textured_flip_normals_nee.py")
+    rows = {tuple(line.split()[:2]): line.split() for line in out.splitlines()
+            if line.split()[:1] in (["rectangle"], ["flipped"], ["cube"]) and len(line.split()) == 10}
+    assert len(rows) == 7, out
+    for radiance in ("rgb", "checkerboard", "bitmap"):
+        assert abs(float(rows["rectangle", radiance][-1])) < 4.5, out        # unflipped: right
+    assert abs(float(rows["flipped", "rgb"][-1])) < 4.5, out
+    for radiance in ("checkerboard", "bitmap"):
+        assert float(rows["flipped", radiance][-2]) < 0.05, out + UPDATE     # flipped, textured: the light is lost
+    assert float(rows["cube", "bitmap"][-1]) < -4.5, out + UPDATE
+    assert "of eval_parameterization [0, 1, 0], of a ray hit [0, -1, 0]" in out, out + UPDATE

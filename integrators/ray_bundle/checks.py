@@ -16,7 +16,10 @@ patch reflects what arrives at it through its BSDF's *smooth* lobes (``bsdf.eval
 
 Mixed BSDFs with a delta lobe (``plastic``'s specular layer, a ``blendbsdf`` with a
 mirror) render: the camera's visible point hands its delta lobes to Mitsuba's ``path``
-and the patches reflect the direct light through them (``first_shot``'s BSDF sample).
+and the patches reflect the direct light through them (``first_shot``'s BSDF sample);
+with a textured area light that Mitsuba samples wrongly (a ``flip_normals`` rectangle,
+a mesh whose uv map does not tile the unit square) they are refused
+(:func:`mi_plugins.support.refuse_textured_lights_behind_handoff`).
 """
 import warnings
 
@@ -56,6 +59,8 @@ def check_scene(plugin, scene, delta_surfaces="refuse"):
                 "only (light transmitted to the other side would be lost)", INSTEAD)
         if _has(bsdf, F.Delta) and not _has(bsdf, F.Smooth):
             delta.append((shape, bsdf))
+    if any(_has(bsdf, F.Delta) for _, bsdf in support.bsdfs(scene)):
+        support.refuse_textured_lights_behind_handoff(plugin, scene, "the camera through delta lobes")
     if not delta:
         return
     shape, bsdf = delta[0]

@@ -224,8 +224,11 @@ class RayBundleIntegrator(SolutionIntegrator):
     cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
     specular surfaces (see ``delta_surfaces``). The delta lobe of a mixed BSDF (the
     specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
-    point, and reflects the direct light into the bundles (``first_shot``'s BSDF
-    sample). The radiance carried by the bundles is constant per patch: where it varies
+    point (refused with a textured ``area`` light that Mitsuba samples wrongly: on a
+    ``flip_normals`` rectangle, or a mesh whose uv map does not cover the unit square
+    once), and reflects the direct light into the bundles (``first_shot``'s BSDF
+    sample). Next-event estimation samples textured area lights uniformly on their shape
+    (``mi_plugins.lights``). The radiance carried by the bundles is constant per patch: where it varies
     within a patch the result is its patch average (exact in the furnace and
     constant-radiance cases, and on spheres, whose point-to-patch form factor is the same
     for every receiving point); a smaller ``patch_size`` (or a higher ``resolution``,

@@ -56,12 +56,20 @@ SPHERE_NEE_FINDING = ("Mitsuba's analytic-sphere emitter sampling from points on
 #: constant_brdf_diffuse_sphere)
 SPHERE_NEE_BIAS = 0.003
 _SPHERE_NEE = {"furnace_sphere": SPHERE_NEE_FINDING, "constant_brdf_diffuse_sphere": SPHERE_NEE_FINDING}
-#: the package's integrators with next-event estimation see the same finding on every
-#: analytic-sphere case (their errors are small enough to show it: qmc_lighttrace 1.0011
-#: +- 0.00007 on furnace_sphere)
-_SPHERE_NEE_ALL = dict(_SPHERE_NEE, diffuse_sphere=SPHERE_NEE_FINDING, bekaert_sphere=SPHERE_NEE_FINDING)
+#: the package's integrators with next-event estimation see the same finding on the
+#: analytic-sphere cases of uniform emission (their errors are small enough to show it:
+#: qmc_lighttrace 1.0011 +- 0.00007 on furnace_sphere); on the textured ones (diffuse_sphere,
+#: bekaert_sphere) they sample the light themselves (mi_plugins.lights) and pass
+_SPHERE_NEE_ALL = dict(_SPHERE_NEE)
 #: the cases on Mitsuba's analytic sphere, where any integrator that samples its emitter sees the finding
-SPHERE_NEE_CASES = tuple(_SPHERE_NEE_ALL)
+SPHERE_NEE_CASES = tuple(dict(_SPHERE_NEE, diffuse_sphere=SPHERE_NEE_FINDING, bekaert_sphere=SPHERE_NEE_FINDING))
+#: qmc_lighttrace on the textured analytic-sphere interiors at unbounded depth: measured
+#: 0.7706 against 0.8455 (diffuse_sphere, z -598) and 0.9420 against 1 (bekaert_sphere),
+#: the same before and after the package sampled textured lights itself; right at
+#: max_depth 2 and 3 (0.61915 / 0.73239 against path's 0.61877 / 0.73191): cause not
+#: located (it had been listed under the sphere finding above)
+QMC_TEXTURED_SPHERE = ("qmc_lighttrace on the textured analytic-sphere interior at unbounded depth: about -9 % "
+                       "(diffuse_sphere) / -6 % (bekaert_sphere), right at max_depth 2 and 3; cause not located")
 
 #: qmc_lighttrace's patch bias of the indirect light in constant-radiance cases (absolute, radiance
 #: ~1; measured -0.02 +- 0.01 % on the mirror box, -0.03 +- 0.03 % on Bekaert's Sierpinski case at
@@ -129,7 +137,9 @@ INTEGRATORS = {
     # light, varies over a patch): bounded by QMC_PATCH_BIAS at the default patch size.
     "qmc_lighttrace": IntegratorSpec({"type": "qmc_lighttrace", "samples": 20000, "gather_samples": 16},
                                      spp=32, quick_spp=64, quick_params={"gather_samples": 4},
-                                     exact_depth=-1, known_failures=dict(_SPHERE_NEE_ALL),
+                                     exact_depth=-1, known_failures=dict(_SPHERE_NEE_ALL,
+                                                                         diffuse_sphere=QMC_TEXTURED_SPHERE,
+                                                                         bekaert_sphere=QMC_TEXTURED_SPHERE),
                                      bias={name: QMC_PATCH_BIAS for name in (
                                          "furnace_box", "furnace_sphere", "furnace_sphere_mesh", "furnace_sierpinski",
                                          "keller_cube", "bekaert_box", "bekaert_sierpinski", "diffuse_sphere",

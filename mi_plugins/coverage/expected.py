@@ -88,7 +88,7 @@ RAY_BUNDLE = Spec(
                  **no_patches("ray_bundle"), **one_direction("ray_bundle")),
     row_params={"case:open_many_emitters": {"resolution": 48}},
     row_spp={"sensor:irradiancemeter": 32, "sensor:radiancemeter": 4, "sensor:distant": 8,
-             "case:light_facing_ceiling": 16},
+             "case:light_facing_ceiling": 16, "case:textured_light_mixed": 2},
     power={"case:textured_area_sphere": (0.2, "the sphere light's texture varies within a patch: its gathered "
                                               "image is noisy at one camera sample per pixel"),
            "case:negative_emission": (0.4, "emitters of both signs: the image mean is a small difference of large "

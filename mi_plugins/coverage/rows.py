@@ -138,7 +138,53 @@ def _emitter_rows():
     rows.append(Row("case:textured_area_sphere", None, lambda r: stage(r, emitter={
         "type": "sphere", "center": [0.2, 1.9, 0.3], "radius": 0.2, "bsdf": diffuse(0.0),
         "emitter": {"type": "area", "radiance": bitmap(noise((8, 16, 3), 4, 1.0, 8.0))}})))
+    rows += _textured_light_rows()
     return rows
+
+
+def textured_rectangle(radiance, flipped, center=(0.0, 2.2, 0.2), size=0.35):
+    """A ``rectangle`` light facing down with a textured ``radiance``: wound upward and
+    turned with ``flip_normals`` (``flipped``), or wound downward with its texture mirrored
+    in v: the same radiance at every point and in every direction, the reference of the
+    flipped one (Mitsuba 3.9.1 samples an unflipped rectangle's texture right)."""
+    radiance = dict(radiance)
+    if not flipped:
+        mirror = mi.ScalarTransform4f().translate([0, 1, 0]).scale([1, -1, 1])
+        radiance["to_uv"] = radiance.get("to_uv", mi.ScalarTransform4f()) @ mirror
+    d = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate(list(center))
+         .rotate([1, 0, 0], -90 if flipped else 90).scale(size), "bsdf": diffuse(0.0),
+         "emitter": {"type": "area", "radiance": radiance}}
+    if flipped:
+        d["flip_normals"] = True
+    return d
+
+
+#: (a checkerboard's colours are reflectances: at most 1)
+CHECKER_LIGHT = {"type": "checkerboard", "color0": rgb([0.3, 0.25, 0.2]), "color1": rgb([0.9, 0.95, 1.0]),
+                 "to_uv": mi.ScalarTransform4f().scale([3, 3, 1])}
+
+
+def _textured_light_rows():
+    """Textured area lights where Mitsuba 3.9.1's own light sampling fails: a bitmap on a
+    ``flip_normals`` rectangle, and a checkerboard one mixed with a point light and a
+    plain area light. Reference: ``path`` on the same scene with the light unflipped and
+    its texture mirrored (:func:`textured_rectangle`)."""
+    tex = bitmap(noise((8, 8, 3), 15, 1.0, 10.0))
+
+    def mixed(r, flipped):
+        d = stage(r, emitter=textured_rectangle(CHECKER_LIGHT, flipped, size=0.5))
+        d["point"] = {"type": "point", "position": [0.5, 1.6, 0.6], "intensity": rgb([0.2, 0.15, 0.1])}
+        d["lamp"] = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([-0.8, 1.8, 0.4])
+                     .rotate([1, 0, 0], 90).scale(0.2), "bsdf": diffuse(0.0), "emitter": {
+                         "type": "area", "radiance": rgb(1.0)}}
+        return d
+    why = ("Mitsuba's path gets (almost) no light from a textured flip_normals rectangle through its light "
+           "samples (docs/findings.md); the reference is path on the same light unflipped, its texture mirrored")
+    return [Row("case:textured_light_flipped", None, lambda r: stage(r, emitter=textured_rectangle(tex, True)),
+                reference_scene=lambda r: stage(r, emitter=textured_rectangle(tex, False)),
+                note="a bitmap radiance on a flip_normals rectangle light; " + why),
+            Row("case:textured_light_mixed", None, lambda r: mixed(r, True), reference_scene=lambda r: mixed(r, False),
+                note="a checkerboard flip_normals rectangle light, a point light and a plain area light; " + why)]
 
 
 # ------------------------------------------------------------------ shapes (the subject)
