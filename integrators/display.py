@@ -63,16 +63,17 @@ class ReadTables:
 
 
 class SmoothTables:
-    """The read tables interpolated from their vertex values (T, V, 2, 3)."""
+    """The read tables interpolated from their vertex values ``values`` (Color3f of the
+    vertex tables (T, V, 2, 3))."""
 
-    def __init__(self, table, field, vertex_tables):
+    def __init__(self, table, field, values):
         self.table, self.field = table, field
         self.vertices = max(field.vertex_count, 1)
-        self.values = _color(vertex_tables)
+        self.values = values
 
     def __call__(self, hit, index, active):
-        patch = self.table.patch(hit)
-        ids, w = self.field.weights(self.table, hit, patch, active)
+        patch, mesh, a, b = self.table.locate(hit, active)
+        ids, w = self.field.weights(patch, mesh, a, b, active)
         base = index * self.vertices
         side = side_of(hit)
         return sum((w[k] * dr.gather(mi.Color3f, self.values, (base + ids[k]) * 2 + side, active)
@@ -91,14 +92,15 @@ class View:
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
         self.adds_direct = not solution.direct_in_tables
         if mode == "patches":
-            self.stored = FlatTables(table, _color(solution.tables))
+            self.stored = FlatTables(table, solution.array("tables", lambda: _color(solution.tables)))
             direct = solution.direct if solution.direct is not None and self.adds_direct else np.zeros((1, 2, 3))
-            self.direct = _color(direct)
+            self.direct = solution.array("direct", lambda: _color(direct))
         else:
-            self.stored = SmoothTables(table, solution.field, solution.vertex_values("tables"))
+            self.stored = SmoothTables(table, solution.field, solution.array(
+                "vertex tables", lambda: _color(solution.vertex_values("tables"))))
         if mode == "baked":
-            reflected = solution.vertex_values("radiance") - solution.vertex_values("emission")
-            self.baked = SmoothTables(table, solution.field, reflected[None])
+            self.baked = SmoothTables(table, solution.field, solution.array("vertex reflected", lambda: _color(
+                solution.vertex_values("radiance") - solution.vertex_values("emission"))))
 
     def visible(self, scene, si, bsdf, budget, active, rng):
         """What purely diffuse visible points ``si`` reflect toward the eye (their emission

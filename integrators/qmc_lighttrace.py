@@ -19,7 +19,7 @@ from mi_plugins.integrators.qmc_particles import dimensions, trace_range
 from mi_plugins.integrators.qmc_phase import particle_phase
 from mi_plugins.integrators.qmc_store import Layers
 from mi_plugins.integrators.qmc_surfaces import Surfaces
-from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters
+from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters
 from mi_plugins.solution import Solution
 from mi_plugins.params import Params
 
@@ -247,7 +247,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
 
     def patch_table(self, scene):
         """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
-        return MeshTable(scene, self.plugin, h=self.patch_size_for(scene), subdivide=self.subdivide)
+        return cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):

@@ -213,24 +213,32 @@ class MeshTable:
 
     def patch(self, si):
         """Global patch index of the surface interactions ``si`` (valid hits)."""
+        return self.locate(si)[0]
+
+    def locate(self, si, active=True):
+        """(global patch index, mesh, a, b) of hits ``si``: on a mesh patch (``mesh``) the
+        barycentric coordinates (a, b) of the hit in it (weights of its corners 1 and 2),
+        on an analytic cell its fractions (a, b) along u and v."""
         shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
-        kind = dr.gather(mi.UInt32, self._kind_by_id, shape_id)
+        kind = dr.gather(mi.UInt32, self._kind_by_id, shape_id, active)
         mesh = kind == 0
-        nu, nv = dr.gather(mi.UInt32, self._nu_by_id, shape_id), dr.gather(mi.UInt32, self._nv_by_id, shape_id)
-        cell = dr.gather(mi.UInt32, self._offset_by_id, shape_id) + tessellation.cell_of(kind, nu, nv, si.uv)
-        parent = dr.gather(mi.UInt32, self._parent_by_id, shape_id) + mi.UInt32(si.prim_index)
-        level = dr.gather(mi.UInt32, self._level, parent, mesh)
-        split = mesh & (level > 1)
+        nu, nv = dr.gather(mi.UInt32, self._nu_by_id, shape_id, active), dr.gather(mi.UInt32, self._nv_by_id,
+                                                                                   shape_id, active)
+        iu, iv, fu, fv = tessellation.cell_coords(kind, nu, nv, si.uv)
+        cell = dr.gather(mi.UInt32, self._offset_by_id, shape_id, active) + iv * nu + iu
+        parent = dr.gather(mi.UInt32, self._parent_by_id, shape_id, active) + mi.UInt32(si.prim_index)
+        on_mesh = mi.Bool(active) & mesh
+        level = dr.gather(mi.UInt32, self._level, parent, on_mesh)
         # barycentric coordinates of si.p in the parent triangle (least squares in its plane)
-        p0 = dr.gather(mi.Point3f, self._parent_p0, parent, split)
-        e1 = dr.gather(mi.Vector3f, self._parent_e1, parent, split)
-        e2 = dr.gather(mi.Vector3f, self._parent_e2, parent, split)
+        p0 = dr.gather(mi.Point3f, self._parent_p0, parent, on_mesh)
+        e1 = dr.gather(mi.Vector3f, self._parent_e1, parent, on_mesh)
+        e2 = dr.gather(mi.Vector3f, self._parent_e2, parent, on_mesh)
         d = si.p - p0
         a11, a12, a22, r1, r2 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2), dr.dot(d, e1), dr.dot(d, e2)
         det = dr.maximum(a11 * a22 - a12 * a12, 1e-30)
-        sub = sub_triangle(level, (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det)
-        first = dr.gather(mi.UInt32, self._first, parent, mesh)
-        return dr.select(mesh, first + sub, cell)       # level 1: sub-triangle 0, whatever (b1, b2)
+        sub, a, b = sub_triangle_coords(level, (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det)
+        first = dr.gather(mi.UInt32, self._first, parent, on_mesh)
+        return dr.select(mesh, first + sub, cell), mesh, dr.select(mesh, a, fu), dr.select(mesh, b, fv)
 
     @property
     def total_area(self):
@@ -268,6 +276,24 @@ class MeshTable:
         if wi_world is not None:
             si.wi = si.to_local(wi_world)
         return si
+
+
+#: the patch table of the last render (one entry for every integrator of the process): a
+#: display renders many views of one scene, and a table of a million triangles takes
+#: seconds to build. Held here, not by an integrator, which its scene holds (a reference
+#: cycle through C++ would keep every scene alive); this keeps the last scene alive only
+_LAST = []
+
+
+def cached_table(scene, who, h, back_sides=False, subdivide=True):
+    """The :class:`MeshTable` of ``scene`` with these settings, built again only when the
+    scene object, its content (``mi_plugins.fingerprint``) or the settings differ from the
+    last call's."""
+    from mi_plugins.fingerprint import scene_fingerprint
+    key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide))
+    if not _LAST or _LAST[0][0] != key:
+        _LAST[:] = [(key, MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide))]
+    return _LAST[0][1]
 
 
 def patch_parameters(p):
@@ -328,11 +354,21 @@ def sub_triangles(s):
 def sub_triangle(s, b1, b2):
     """Index (see :func:`sub_triangles`) of the sub-triangle holding barycentric
     coordinates (b1, b2) in a triangle split at level ``s`` (JIT arrays)."""
+    return sub_triangle_coords(s, b1, b2)[0]
+
+
+def sub_triangle_coords(s, b1, b2):
+    """(index, a, b): the sub-triangle holding (b1, b2) (:func:`sub_triangle`) and the
+    barycentric coordinates (a, b) of the point in it (weights of its corners 1 and 2,
+    in the order of :func:`sub_triangles`; clamped into the sub-triangle)."""
     x, y = b1 * mi.Float(s), b2 * mi.Float(s)
     j = dr.minimum(mi.UInt32(dr.maximum(y, 0.0)), s - 1)
     i = dr.minimum(mi.UInt32(dr.maximum(x, 0.0)), s - 1 - j)
-    inverted = ((x - mi.Float(i)) + (y - mi.Float(j)) > 1.0) & (i + j < s - 1)
-    return j * (2 * s - j) + 2 * i + dr.select(inverted, 1, 0)
+    fx, fy = x - mi.Float(i), y - mi.Float(j)
+    inverted = (fx + fy > 1.0) & (i + j < s - 1)
+    a = dr.clip(dr.select(inverted, 1.0 - fx, fx), 0.0, 1.0)
+    b = dr.clip(dr.select(inverted, 1.0 - fy, fy), 0.0, 1.0 - a)
+    return j * (2 * s - j) + 2 * i + dr.select(inverted, 1, 0), a, b
 
 
 def _runs(level):

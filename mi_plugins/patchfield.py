@@ -13,15 +13,17 @@ smooth display and the exported meshes show the field reconstructed from them:
   vertex; where those do not span the plane (the corner of a quad), through the
   patches that share a vertex with them too (exact for a field linear in position on a
   flat surface, at interior, border and corner vertices alike; the area-weighted mean
-  only where even those do not span it); where every patch used has a value of one
-  sign, the vertex keeps that sign;
+  only where even those do not span it). A vertex value is a fixed linear combination
+  of patch values, so unbiased patch values give unbiased vertex values (no clamping:
+  keeping a sign would bias noisy solutions; a plane extrapolated to a border can make a
+  vertex of a noisy solution negative);
 - **interpolation**: a point of a triangle patch takes its barycentric combination of
   the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
 
 Values are arrays (K, C) over the front patches of a :class:`mi_plugins.meshtable.MeshTable`
 (any C channels: sides, RGB, tables); :class:`PatchField` fits them (numpy, vectorised
 over vertices) and :meth:`PatchField.weights` gives, inside kernels, the four vertex
-indices and weights of each hit.
+indices and weights of each hit located by ``MeshTable.locate``.
 """
 import drjit as dr
 import mitsuba as mi
@@ -205,13 +207,6 @@ class PatchField:
         patch, vertex, coef = self._pairs
         out = np.zeros((self.vertex_count, flat.shape[1]))
         np.add.at(out, vertex, coef[:, None] * flat[patch])
-        # a vertex keeps the sign every patch around it shares
-        lo = np.full_like(out, np.inf)
-        hi = np.full_like(out, -np.inf)
-        np.minimum.at(lo, vertex, flat[patch])
-        np.maximum.at(hi, vertex, flat[patch])
-        out = np.where(lo >= 0, np.maximum(out, 0.0), out)
-        out = np.where(hi <= 0, np.minimum(out, 0.0), out)
         return out.reshape((self.vertex_count,) + shape)
 
     def evaluate(self, vertex_values, patch, bary):
@@ -238,23 +233,11 @@ class PatchField:
             self._jit = [mi.UInt32(ids[:, j].astype(np.uint32)) for j in range(4)]
         return self._jit
 
-    def weights(self, table, si, patch, active=True):
-        """Per lane: the four vertex indices (UInt32) and weights (Float) of hits ``si`` of
-        front patches ``patch`` (barycentric on triangles, bilinear in (u, v) on cells)."""
+    def weights(self, patch, mesh, a, b, active=True):
+        """Per lane: the four vertex indices (UInt32) and weights (Float) of points of the
+        front patches ``patch`` at coordinates (a, b) (``MeshTable.locate``: barycentric on
+        triangles, bilinear on cells)."""
         ids = [dr.gather(mi.UInt32, arr, patch, active) for arr in self.jit()]
-        kind = dr.gather(mi.UInt32, table.kind, patch, active)
-        p0 = dr.gather(mi.Point3f, table.p0, patch, active)
-        e1 = dr.gather(mi.Vector3f, table.e1, patch, active)
-        e2 = dr.gather(mi.Vector3f, table.e2, patch, active)
-        d = si.p - p0
-        a11, a12, a22, r1, r2 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2), dr.dot(d, e1), dr.dot(d, e2)
-        det = dr.maximum(a11 * a22 - a12 * a12, 1e-30)
-        b1 = dr.clip((a22 * r1 - a12 * r2) / det, 0.0, 1.0)
-        b2 = dr.clip((a11 * r2 - a12 * r1) / det, 0.0, 1.0 - b1)
-        u0, u1, v0, v1 = (dr.gather(mi.Float, b, patch, active) for b in table.bounds)
-        s = dr.clip((si.uv.x - u0) / dr.maximum(u1 - u0, 1e-30), 0.0, 1.0)
-        t = dr.clip((si.uv.y - v0) / dr.maximum(v1 - v0, 1e-30), 0.0, 1.0)
-        mesh = kind == 0
-        w = [dr.select(mesh, 1.0 - b1 - b2, (1.0 - s) * (1.0 - t)), dr.select(mesh, b1, s * (1.0 - t)),
-             dr.select(mesh, b2, (1.0 - s) * t), dr.select(mesh, 0.0, s * t)]
+        w = [dr.select(mesh, 1.0 - a - b, (1.0 - a) * (1.0 - b)), dr.select(mesh, a, a * (1.0 - b)),
+             dr.select(mesh, b, (1.0 - a) * b), dr.select(mesh, 0.0, a * b)]
         return ids, w

@@ -55,6 +55,7 @@ class Solution:
         self.meta = dict(meta)
         self.field = field
         self._vertex = {}
+        self._arrays = {}
 
     # ------------------------------------------------------------------ properties
     @property
@@ -70,8 +71,9 @@ class Solution:
         return int(self.meta.get("max_depth", -1)) < 0
 
     def indirect(self):
-        """(K, 2, 3): the irradiance of every path the tables hold."""
-        return self.tables[-1]
+        """(K, 2, 3): the irradiance of every path the tables hold (zeros without tables: a
+        depth that reads no stored light)."""
+        return self.tables[-1] if len(self.tables) else np.zeros((self.patches, 2, 3))
 
     def total_irradiance(self):
         """(K, 2, 3): direct and carried irradiance together."""
@@ -91,6 +93,12 @@ class Solution:
             else:
                 self._vertex[name] = self.field.fit(values)
         return self._vertex[name]
+
+    def array(self, name, make):
+        """A Dr.Jit array of this solution for kernels (``make()``, made once per name)."""
+        if name not in self._arrays:
+            self._arrays[name] = make()
+        return self._arrays[name]
 
     def __repr__(self):
         m = self.meta

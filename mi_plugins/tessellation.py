@@ -135,10 +135,22 @@ class ShapePatches:
 def cell_of(kind, nu, nv, uv):
     """Patch index within its shape of the points with parameters ``uv`` (JIT arrays;
     ``kind``, ``nu``, ``nv`` per lane)."""
-    u = dr.select(kind == 2, uv.x * uv.x, uv.x)
+    iu, iv, _, _ = cell_coords(kind, nu, nv, uv)
+    return iv * nu + iu
+
+
+def cell_coords(kind, nu, nv, uv):
+    """(iu, iv, fu, fv): the cell of the points with parameters ``uv`` and their fractions
+    within it along u (the radius on a disk, whose rings have equal areas) and v, in 0 .. 1."""
+    disk = kind == 2
+    u = dr.select(disk, uv.x * uv.x, uv.x)
     iu = dr.minimum(mi.UInt32(dr.maximum(u, 0.0) * mi.Float(nu)), nu - 1)
     iv = dr.minimum(mi.UInt32(dr.maximum(uv.y, 0.0) * mi.Float(nv)), nv - 1)
-    return iv * nu + iu
+    u0, u1 = mi.Float(iu) / mi.Float(nu), mi.Float(iu + 1) / mi.Float(nu)
+    u0, u1 = dr.select(disk, dr.sqrt(u0), u0), dr.select(disk, dr.sqrt(u1), u1)
+    fu = dr.clip((uv.x - u0) / dr.maximum(u1 - u0, 1e-30), 0.0, 1.0)
+    fv = dr.clip(uv.y * mi.Float(nv) - mi.Float(iv), 0.0, 1.0)
+    return iu, iv, fu, fv
 
 
 def sample_cell(kind, bounds, sample):

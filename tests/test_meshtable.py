@@ -129,8 +129,9 @@ def test_sub_triangle_index_without_the_inverted_ones_would_fail(monkeypatch):
     """The test of the test: a lookup that ignores the inverted sub-triangles maps hits
     to the wrong patches."""
     from mi_plugins import meshtable
-    real = meshtable.sub_triangle
-    monkeypatch.setattr(meshtable, "sub_triangle", lambda s, b1, b2: real(s, b1, b2) & ~mi.UInt32(1))
+    real = meshtable.sub_triangle_coords
+    monkeypatch.setattr(meshtable, "sub_triangle_coords",
+                        lambda s, b1, b2: (lambda found: (found[0] & ~mi.UInt32(1),) + found[1:])(real(s, b1, b2)))
     scene = _two_triangles(False)
     table = MeshTable(scene, "test", h=0.3)
     tri = dr.arange(mi.UInt32, table.count)

@@ -68,7 +68,9 @@ def _field_error(shape, h):
     patch = np.repeat(np.arange(k), 4)
     sample = rng.random((len(patch), 2))
     si = table.surface_interaction(mi.UInt32(patch.astype(np.uint32)), mi.Point2f(sample[:, 0], sample[:, 1]))
-    ids, w = field.weights(table, si, mi.UInt32(patch.astype(np.uint32)))
+    found, mesh, a, b = table.locate(si)
+    assert np.array_equal(np.array(found), patch)
+    ids, w = field.weights(found, mesh, a, b)
     values = mi.Float(vertex[:, 0])
     got = np.array(sum((w[j] * dr.gather(mi.Float, values, ids[j]) for j in range(4)), mi.Float(0.0)))
     points = np.array(si.p, dtype=np.float64).T

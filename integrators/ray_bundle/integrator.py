@@ -15,7 +15,7 @@ from mi_plugins.integrators.ray_bundle import frozen
 from mi_plugins.integrators.ray_bundle import limits
 from mi_plugins.integrators.ray_bundle.limits import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
-from mi_plugins.meshtable import MeshTable, default_patch_size, patch_parameters, scene_bounds
+from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters, scene_bounds
 from mi_plugins.params import Params
 from mi_plugins.solution import Solution
 
@@ -342,7 +342,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         """The patches of ``scene`` (checked against the memory first), with back sides."""
         h = self.patch_size_for(scene)
         limits.check_patches(limits.predicted_patches(scene, h, self.subdivide), available_memory())
-        return MeshTable(scene, self.plugin, h=h, back_sides=True, subdivide=self.subdivide)
+        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide)
 
     def _render_frame(self, frame):
         table = self.patch_table(frame.scene)

@@ -111,7 +111,29 @@ QMC_LIGHTTRACE = Spec(
     power={"sensor:irradiancemeter": (0.2, "one pixel: the reference's own noise (path's 64-fold budget on one "
                                            "irradiance value) dominates; more particles do not change it")})
 
-INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE)}
+
+
+def displayed(spec, display, spp, **changes):
+    """The column of ``spec``'s integrator with ``display`` (a view-independent solution
+    shown by the display modes): the same refusals (a display changes how the image is
+    made, not what the solve supports), ``spp`` camera samples per pixel."""
+    fields = dict(spec.__dict__, name="%s:%s" % (spec.name, display), params=dict(spec.params, display=display),
+                  spp=spp)
+    fields.update(changes)
+    return Spec(**fields)
+
+
+#: the display modes: 'smooth' on every row; the solve is the integrator's own. The open
+#: scene's planes are 80 wide: a display shows the patches' irradiance where the camera
+#: sees it, not averaged over a gather ray's hemisphere, so it needs finer patches than the
+#: gather there (qmc_lighttrace at its gather's patch size 2.0: -24 % of the indirect light)
+RAY_BUNDLE_SMOOTH = displayed(RAY_BUNDLE, "smooth", 16, scale_spp=True,
+                              row_params={"case:open_many_emitters": {"resolution": 96, "patch_size": 2.4}})
+QMC_LIGHTTRACE_SMOOTH = displayed(QMC_LIGHTTRACE, "smooth", 64,
+                                  row_params={"case:open_many_emitters": {"patch_size": 1.0}})
+
+INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE, RAY_BUNDLE_SMOOTH,
+                                   QMC_LIGHTTRACE_SMOOTH)}
 
 
 def spec_of(integrator):
