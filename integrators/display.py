@@ -72,8 +72,8 @@ class SmoothTables:
         self.values = values
 
     def __call__(self, hit, index, active):
-        patch, mesh, a, b = self.table.locate(hit, active)
-        ids, w = self.field.weights(patch, mesh, a, b, active)
+        _, element, mesh, a, b = self.table.locate(hit, active)
+        ids, w = self.field.weights(element, mesh, a, b, active)
         base = index * self.vertices
         side = side_of(hit)
         return sum((w[k] * dr.gather(mi.Color3f, self.values, (base + ids[k]) * 2 + side, active)
@@ -120,6 +120,20 @@ class View:
         return value
 
 
+def gather_elsewhere(paths, seed, gather_samples, si, bsdf, used, lanes):
+    """The gather of ``qmc_gather`` at the visible points of ``lanes`` only (the points the
+    display does not read: glossy, mixed, bump-mapped), run on those lanes alone."""
+    index = dr.compress(lanes)
+    total = dr.zeros(mi.Color3f, dr.width(lanes))
+    if dr.width(index) == 0:
+        return total
+    at = dr.gather(mi.SurfaceInteraction3f, si, index)
+    light, gathered = paths.gather(None, seed, gather_samples, at, dr.gather(mi.BSDFPtr, bsdf, index),
+                                   dr.gather(mi.UInt32, used, index), dr.full(mi.Bool, True, dr.width(index)))
+    dr.scatter(total, light + gathered, index)
+    return total
+
+
 def pass_layout(spp, pixels):
     """(camera samples per pixel and pass, passes): spp = their product, one pass at
     most MAX_PASS_LANES lanes (the largest divisor of spp that fits)."""
@@ -145,8 +159,7 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         rng = seeds.pcg(cam.count, seed, "camera_path", 2)
         value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng)
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
-            light, gathered = paths.gather(cam, seed, gather_samples, si, bsdf, used, active & ~diffuse)
-            value += light + gathered
+            value += gather_elsewhere(paths, seed, gather_samples, si, bsdf, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())

@@ -97,19 +97,26 @@ class CameraPaths:
         light, gathered = self.gather(cam, seed, gather_samples, si, bsdf, used, active)
         return chain, si, light, gathered
 
-    def gather(self, cam, seed, gather_samples, si, bsdf, used, active):
+    def gather(self, cam, seed, gather_samples, si, bsdf, used, active, sampler=None):
         """(light, gathered) at visible points ``si`` (lanes ``active``) of camera pass
-        ``cam``; the SR gather samples of an eye ray are SR consecutive lanes of one loop."""
-        sr, n = int(gather_samples), cam.count
-        light = light_sample(self.scene, si, bsdf, cam.sampler.next_2d(active), active, float(sr))
+        ``cam`` (None: lanes of their own, numbers from ``seed``'s stream instead of the
+        camera sampler); the SR gather samples of an eye ray are SR consecutive lanes of
+        one loop."""
+        sr, n = int(gather_samples), dr.width(active)
+        own = seeds.pcg(n, seed, "camera_path", 3) if cam is None else None
+        draw_1d = cam.sampler.next_1d if cam is not None else lambda active: own.next_float32(active)
+        draw_2d = cam.sampler.next_2d if cam is not None else \
+            lambda active: mi.Point2f(own.next_float32(active), own.next_float32(active))
+        light = light_sample(self.scene, si, bsdf, draw_2d(active), active, float(sr))
         # the gather samples' numbers from the camera sampler, lane i * SR + j for sample j of eye lane i
         numbers = [dr.zeros(mi.Float, n * sr) for _ in range(3)]
         slots = dr.arange(mi.UInt32, n) * sr
         for j in range(sr):        # SR draws of the sampler (a small constant)
-            u1, u2 = cam.sampler.next_1d(active), cam.sampler.next_2d(active)
+            u1, u2 = draw_1d(active), draw_2d(active)
             for target, value in zip(numbers, (u1, u2.x, u2.y)):
                 dr.scatter(target, value, slots + j)
-        cam.sampler.schedule_state()
+        if cam is not None:
+            cam.sampler.schedule_state()
         dr.eval(light, numbers)
         eye = dr.arange(mi.UInt32, n * sr) // sr
         at, go = dr.gather(mi.SurfaceInteraction3f, si, eye), dr.gather(mi.Bool, active, eye)

@@ -128,6 +128,13 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
        - true
        - split long mesh triangles (above); false keeps the triangles as modelled (the
          papers' patches)
+     * - cluster
+       - bool
+       - true
+       - group mesh triangles much smaller than the patch size (longest edge below h / 2)
+         into patches of about h by grid cell and normal direction (within about 45
+         degrees), so that the patch count follows the surface area, not the triangle
+         count (``mi_plugins.mesh_parts``); false: one patch per small triangle
      * - display
        - string
        - ``'gather'``
@@ -193,7 +200,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.gather_samples = p.int("gather_samples", 4, lo=1, hi=MAX_GATHER)
         self.share_neighbors = p.bool("share_neighbors", False)
         self.mirror_depth = p.int("mirror_depth", -1, lo=-1, note="-1: as far as max_depth allows")
-        self.patch_size, self.subdivide = patch_parameters(p)
+        self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
         self.dims, limit = dimensions(self.sequence_depth), qmc.max_dim(self.sequence)   # lcg, independent: no limit
         if self.dims > limit:
             raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
@@ -226,7 +233,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     def solution_settings(self):
         return (self.sequence, self.scramble, self.sequence_depth, self.samples, self.epsilon, self.batch,
                 self.patience, self.max_samples, self.max_depth, self.layers.max_hits, self.patch_size,
-                self.subdivide)
+                self.subdivide, self.cluster)
 
     def compute_solution(self, scene, table, seed, preview=None, **unused):
         """The particle phase as a view-independent solution (read tables of particle hits
@@ -247,7 +254,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
 
     def patch_table(self, scene):
         """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
-        return cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide)
+        return cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide,
+                            cluster=self.cluster)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):

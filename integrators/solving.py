@@ -125,5 +125,5 @@ def solution_meta(integ, scene, table, seed, patch_size, **extra):
               for shape, digest, count, summary in zip(table.shapes, fingerprint.shape_digests(scene), counts,
                                                        fingerprint.shape_summary(scene))]
     return dict(integrator=integ.plugin, seed=int(seed), max_depth=int(integ.max_depth), patch_size=float(patch_size),
-                subdivide=bool(integ.subdivide), fingerprint=fingerprint.scene_fingerprint(scene), shapes=shapes,
-                **extra)
+                subdivide=bool(integ.subdivide), cluster=bool(integ.cluster),
+                fingerprint=fingerprint.scene_fingerprint(scene), shapes=shapes, **extra)

@@ -41,28 +41,20 @@ WELD_TOLERANCE = 1e-6
 MIN_SPREAD = 1e-3
 
 
-def _analytic_corners(table):
-    """(K, 4, 3) world corners (u0, v0), (u1, v0), (u0, v1), (u1, v1) and (K, 3) centres
-    of the analytic cells (zeros for mesh patches)."""
-    kind, bounds, frame = table.kind_np, table.bounds_np, table.frame_np
-    k = len(kind)
-    corners, centres = np.zeros((k, 4, 3)), np.zeros((k, 3))
+def _analytic_corners(kind, bounds, frame):
+    """(E, 4, 3) world corners (u0, v0), (u1, v0), (u0, v1), (u1, v1) of the analytic cells
+    among elements of ``kind`` (zeros for mesh elements)."""
+    corners = np.zeros((len(kind), 4, 3))
     cells = np.flatnonzero(kind != 0)
     if not len(cells):
-        return corners, centres
+        return corners
     u0, u1, v0, v1 = (bounds[cells, j] for j in range(4))
-    us = [u0, u1, u0, u1, 0.5 * (u0 + u1)]
-    vs = [v0, v0, v1, v1, 0.5 * (v0 + v1)]
     columns = [mi.Float(frame[cells, j]) for j in range(frame.shape[1])]
-    for j, (u, v) in enumerate(zip(us, vs)):
+    for j, (u, v) in enumerate(zip([u0, u1, u0, u1], [v0, v0, v1, v1])):
         uv = mi.Point2f(mi.Float(u), mi.Float(v))
         p, _ = tessellation.ShapeFrame.apply(columns, *tessellation.local_point(mi.UInt32(kind[cells]), uv))
-        p = np.array(p, dtype=np.float64).T.reshape(-1, 3)
-        if j < 4:
-            corners[cells, j] = p
-        else:
-            centres[cells] = p
-    return corners, centres
+        corners[cells, j] = np.array(p, dtype=np.float64).T.reshape(-1, 3)
+    return corners
 
 
 def weld(points, normals, scale, angle=WELD_ANGLE):
@@ -95,42 +87,52 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
 
 
 class PatchField:
-    """The vertices of the front patches of ``table`` and the fit of patch values to them."""
+    """The vertices of the elements of ``table``'s front patches (triangles, sub-triangles,
+    cells: a clustered patch has many) and the fit of patch values to them."""
 
     def __init__(self, table):
-        kind = table.kind_np
-        self.count = k = len(kind)
+        el = table.elements_np
+        kind, tri = el["kind"], el["triangle"]
+        self.elements, self.count = len(kind), table.front_count
         mesh = kind == 0
-        tri = table.triangles_np
-        cell_corners, cell_centres = _analytic_corners(table)
-        self.corners = np.where(mesh[:, None, None], np.concatenate([tri, tri[:, :1]], axis=1), cell_corners)
+        self.corners = np.where(mesh[:, None, None], np.concatenate([tri, tri[:, :1]], axis=1),
+                                _analytic_corners(kind, el["bounds"], el["frame"]))
         self.corner_count = np.where(mesh, 3, 4)
-        self.centroids = np.where(mesh[:, None], tri.mean(axis=1), cell_centres)
-        self.normals = table.normals_np[:k]
-        self.areas = table.areas_np[:k]
-        self.kind = kind
+        self.kind, self.element_patch, self.element_normals = kind, el["patch"], el["normal"]
+        self.element_shape = el["shape"]
+        self.normals = table.normals_np[:self.count]
+        self.areas = table.areas_np[:self.count]
+        weight = el["area"][:, None]           # patch centroids: area-weighted element centres
+        self.centroids = np.stack([np.bincount(self.element_patch, (weight * el["centre"])[:, k],
+                                               minlength=self.count) for k in range(3)], axis=1) \
+            / np.maximum(self.areas, 1e-300)[:, None]
         used = np.arange(4)[None, :] < self.corner_count[:, None]
-        patch_of = np.repeat(np.arange(k), 4).reshape(k, 4)[used]
+        element_of = np.repeat(np.arange(self.elements), 4).reshape(-1, 4)[used]
         points = self.corners[used]
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0
-        ids = weld(points, self.normals[patch_of], extent)
-        self.vertex_ids = np.zeros((k, 4), np.int64)
+        ids = weld(points, self.element_normals[element_of], extent)
+        self.vertex_ids = np.zeros((self.elements, 4), np.int64)
         self.vertex_ids[used] = ids
         self.vertex_count = int(ids.max()) + 1 if len(ids) else 0
         self.vertex_positions = np.zeros((self.vertex_count, 3))
         self.vertex_positions[ids] = points          # welded corners coincide
-        self._incidence = (patch_of, ids)
+        self._element_incidence = (element_of, ids)
         self._prepare_fit()
         self._jit = None
 
     # ------------------------------------------------------------------ fitting (numpy)
+    def _patch_pairs(self, element, vertex):
+        """The distinct (patch, vertex) pairs of (element, vertex) pairs."""
+        pairs = np.unique(np.stack([self.element_patch[element], vertex], axis=1), axis=0)
+        return pairs[:, 0], pairs[:, 1]
+
     def _prepare_fit(self):
         """Per vertex: the coefficients of its value in the values of the patches around it:
         the least-squares plane through the patches sharing it or, where those do not span
         the plane (a corner), through the patches sharing a vertex with them."""
-        patch, vertex = self._incidence
+        patch, vertex = self._patch_pairs(*self._element_incidence)
         if not len(patch):
-            self._pairs = (patch, vertex, np.zeros(0))
+            self._pairs, self.planes = (patch, vertex, np.zeros(0)), np.zeros(0, bool)
             return
         coef, plane = self._plane_fit(patch, vertex)
         weak = np.flatnonzero(~plane)
@@ -146,25 +148,24 @@ class PatchField:
         self.planes = plane           # per vertex: a plane was fitted (else the mean)
 
     def _second_ring(self, vertices):
-        """(patch, vertex) pairs of the patches that share a vertex with a patch around each
-        of ``vertices``."""
-        patch, vertex = self._incidence
+        """(patch, vertex) pairs of the patches of the elements that share a vertex with an
+        element around each of ``vertices``."""
+        element, vertex = self._element_incidence
         order = np.argsort(vertex, kind="stable")
-        patches_of, start = patch[order], np.searchsorted(vertex[order], np.arange(self.vertex_count + 1))
+        elements_of, start = element[order], np.searchsorted(vertex[order], np.arange(self.vertex_count + 1))
 
         def around(targets, centres):
-            """(target, patch) for every patch around each vertex of ``centres``."""
+            """(target, element) for every element around each vertex of ``centres``."""
             counts = start[centres + 1] - start[centres]
             before = np.repeat(np.cumsum(counts) - counts, counts)
             index = np.repeat(start[centres], counts) + np.arange(counts.sum()) - before
-            return np.repeat(targets, counts), patches_of[index]
-        v1, p1 = around(vertices, vertices)                # the first ring
-        used = np.arange(4)[None, :] < self.corner_count[p1][:, None]
-        corners = np.unique(np.stack([np.repeat(v1, 4).reshape(-1, 4)[used], self.vertex_ids[p1][used]], axis=1),
-                            axis=0)                        # (vertex, a corner of a patch around it)
+            return np.repeat(targets, counts), elements_of[index]
+        v1, e1 = around(vertices, vertices)                # the first ring
+        used = np.arange(4)[None, :] < self.corner_count[e1][:, None]
+        corners = np.unique(np.stack([np.repeat(v1, 4).reshape(-1, 4)[used], self.vertex_ids[e1][used]], axis=1),
+                            axis=0)                        # (vertex, a corner of an element around it)
         target, far = around(corners[:, 0], corners[:, 1])
-        pairs = np.unique(np.stack([far, target], axis=1), axis=0)
-        return pairs[:, 0], pairs[:, 1]
+        return self._patch_pairs(far, target)
 
     def _plane_fit(self, patch, vertex):
         """(coefficient per pair, plane per vertex) of the area-weighted least-squares plane
@@ -209,22 +210,6 @@ class PatchField:
         np.add.at(out, vertex, coef[:, None] * flat[patch])
         return out.reshape((self.vertex_count,) + shape)
 
-    def evaluate(self, vertex_values, patch, bary):
-        """numpy: the interpolated value at points of ``patch`` (N,) with weights ``bary``
-        (N, 4) (see :meth:`corner_weights_np`)."""
-        ids = self.vertex_ids[patch]
-        return np.einsum("nk,nk...->n...", bary, np.asarray(vertex_values)[ids])
-
-    def corner_weights_np(self, patch, points):
-        """numpy: the interpolation weights (N, 4) of world ``points`` of mesh patches."""
-        c = self.corners[patch]
-        e1, e2, d = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], points - c[:, 0]
-        a11, a12, a22 = (np.einsum("ij,ij->i", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
-        r1, r2 = np.einsum("ij,ij->i", d, e1), np.einsum("ij,ij->i", d, e2)
-        det = np.maximum(a11 * a22 - a12 * a12, 1e-300)
-        b1, b2 = (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det
-        return np.stack([1 - b1 - b2, b1, b2, np.zeros_like(b1)], axis=1)
-
     # ------------------------------------------------------------------ kernels
     def jit(self):
         """The arrays kernels read (made once)."""
@@ -233,11 +218,11 @@ class PatchField:
             self._jit = [mi.UInt32(ids[:, j].astype(np.uint32)) for j in range(4)]
         return self._jit
 
-    def weights(self, patch, mesh, a, b, active=True):
-        """Per lane: the four vertex indices (UInt32) and weights (Float) of points of the
-        front patches ``patch`` at coordinates (a, b) (``MeshTable.locate``: barycentric on
+    def weights(self, element, mesh, a, b, active=True):
+        """Per lane: the four vertex indices (UInt32) and weights (Float) of points of
+        elements ``element`` at coordinates (a, b) (``MeshTable.locate``: barycentric on
         triangles, bilinear on cells)."""
-        ids = [dr.gather(mi.UInt32, arr, patch, active) for arr in self.jit()]
+        ids = [dr.gather(mi.UInt32, arr, element, active) for arr in self.jit()]
         w = [dr.select(mesh, 1.0 - a - b, (1.0 - a) * (1.0 - b)), dr.select(mesh, a, a * (1.0 - b)),
              dr.select(mesh, b, (1.0 - a) * b), dr.select(mesh, 0.0, a * b)]
         return ids, w

@@ -190,7 +190,7 @@ class Solution:
                        direct=arrays.get("direct"), radiance=arrays.get("radiance"), emission=arrays.get("emission"))
         order = solution.check_scene(scene)
         table = MeshTable(scene, meta.get("integrator", "solution"), h=meta["patch_size"],
-                          subdivide=meta["subdivide"])
+                          subdivide=meta["subdivide"], cluster=meta.get("cluster", True))
         counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
         for stored, index in zip(meta["shapes"], order):
             if counts[index] != stored["patches"]:

@@ -31,15 +31,16 @@ def _srgb(linear):
     return np.where(a <= 0.0031308, 12.92 * a, 1.055 * a ** (1 / 2.4) - 0.055)
 
 
-def shape_faces(field, patches):
-    """(local vertex ids (V_s,), faces (F, 3) into them) of the patches ``patches`` of one
-    shape, degenerate triangles left out, each wound along its patch's normal."""
-    mesh = field.kind[patches] == 0
-    tri = [np.stack([field.vertex_ids[patches[mesh], k] for k in (0, 1, 2)], axis=1),
-           np.concatenate([np.stack([field.vertex_ids[patches[~mesh], k] for k in t], axis=1)
-                           for t in CELL_TRIANGLES]) if (~mesh).any() else np.zeros((0, 3), np.int64)]
-    normals = [field.normals[patches[mesh]], np.concatenate([field.normals[patches[~mesh]]] * 2)
-               if (~mesh).any() else np.zeros((0, 3))]
+def shape_faces(field, elements):
+    """(local vertex ids (V_s,), faces (F, 3) into them) of the elements ``elements`` of one
+    shape, degenerate triangles left out, each wound along its element's normal."""
+    mesh = field.kind[elements] == 0
+    cells = elements[~mesh]
+    tri = [np.stack([field.vertex_ids[elements[mesh], k] for k in (0, 1, 2)], axis=1),
+           np.concatenate([np.stack([field.vertex_ids[cells, k] for k in t], axis=1) for t in CELL_TRIANGLES])
+           if len(cells) else np.zeros((0, 3), np.int64)]
+    normals = [field.element_normals[elements[mesh]], np.concatenate([field.element_normals[cells]] * 2)
+               if len(cells) else np.zeros((0, 3))]
     faces, normal = np.concatenate(tri), np.concatenate(normals)
     p = field.vertex_positions[faces]
     cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -61,10 +62,9 @@ def write_meshes(solution, folder, display_colors=False):
     radiance = solution.vertex_values("radiance")                    # (V, 2, 3)
     scale = max(float(np.percentile(radiance[:, 0], 99)), 1e-12) if display_colors else 1.0
     shapes = solution.meta["shapes"]
-    starts = np.concatenate([[0], np.cumsum([s["patches"] for s in shapes])])
     paths, used = [], set()
     for k, shape in enumerate(shapes):
-        ids, faces = shape_faces(field, np.arange(starts[k], starts[k + 1]))
+        ids, faces = shape_faces(field, np.flatnonzero(field.element_shape == k))
         name = re.sub(r"[^A-Za-z0-9_.-]+", "_", shape["id"] or "shape") or "shape"
         while name in used:
             name += "_%d" % k

@@ -398,3 +398,45 @@ def test_a_users_own_cluster_gets_the_callers_variant(tmp_path, monkeypatch):
     finally:
         client.close()
         cluster.close()
+
+
+def _two_sensors(path):
+    """The scene at ``path`` with a second sensor (moved 0.1 along x)."""
+    text = open(path).read()
+    start = text.index('<sensor type="perspective">')
+    sensor = text[start:text.index("</sensor>", start) + len("</sensor>")]
+    other = sensor.replace('-0.459800482 0.400000006', '-0.459800482 0.300000006')
+    with open(path, "w") as f:
+        f.write(text.replace(sensor, sensor + "\n    " + other))
+    return path
+
+
+@pytest.mark.parametrize("integrator", ["qmc_lighttrace", "path"])
+def test_views_share_one_solve_shipped_to_every_worker(integrator, clients, tmp_path):
+    """Every sensor a task; a solution integrator solves once (its own task) and ships
+    the solution: each view equals the single-process render from the same solution."""
+    xml = {"qmc_lighttrace": '<integrator type="qmc_lighttrace"><integer name="samples" value="20000"/>'
+                             '<string name="display" value="smooth"/></integrator>',
+           "path": INTEGRATORS["path"]}[integrator]
+    path = _two_sensors(scene_copy(str(tmp_path), xml))
+    result = distributed.render_views(path, 4, client=clients[2], seed=3, progress=False)
+    assert len(result.images) == 2 and result.solves == (integrator != "path")
+    scene = mi.load_file(path, parallel=False, optimize=False)
+    for k, image in enumerate(result.images):
+        local = np.array(mi.render(scene, sensor=k, spp=4, seed=3))
+        np.testing.assert_allclose(image, local, rtol=1e-5, atol=1e-6)
+    if integrator != "path":
+        assert scene.integrator().solve_count == 1
+    assert not np.allclose(result.images[0], result.images[1])
+
+
+def test_cli_renders_every_sensor(tmp_path):
+    from mi_plugins import cli
+    xml = ('<integrator type="qmc_lighttrace"><integer name="samples" value="20000"/>'
+           '<string name="display" value="smooth"/></integrator>')
+    path = _two_sensors(scene_copy(str(tmp_path), xml))
+    out = str(tmp_path / "view.exr")
+    assert cli.main(["render", path, "-o", out, "--spp", "2", "--sensors", "all", "--preview-every", "4"]) == 0
+    images = [exr.read(str(tmp_path / ("view_%d.exr" % k)))[0] for k in (0, 1)]
+    assert images[0].shape == images[1].shape and not np.allclose(images[0], images[1])
+    assert cli.main(["render", path, "-o", out, "--spp", "2", "--sensors", "0,7"]) == 2

@@ -122,7 +122,8 @@ def test_long_triangles_are_split_into_similar_sub_triangles(texcoords):
     assert np.abs(np.array(hit.p) - np.array(si.p)).max() < 1e-5
     assert np.array_equal(np.array(si.prim_index), np.repeat([0, 1], s * s))
     assert MeshTable(scene, "test", h=0.3, subdivide=False).count == 2
-    assert MeshTable(scene, "test", h=10.0).count == 2
+    assert MeshTable(scene, "test", h=10.0, cluster=False).count == 2
+    assert MeshTable(scene, "test", h=10.0).count == 1        # both far below h: one cluster
 
 
 def test_sub_triangle_index_without_the_inverted_ones_would_fail(monkeypatch):

@@ -68,9 +68,9 @@ def _field_error(shape, h):
     patch = np.repeat(np.arange(k), 4)
     sample = rng.random((len(patch), 2))
     si = table.surface_interaction(mi.UInt32(patch.astype(np.uint32)), mi.Point2f(sample[:, 0], sample[:, 1]))
-    found, mesh, a, b = table.locate(si)
+    found, element, mesh, a, b = table.locate(si)
     assert np.array_equal(np.array(found), patch)
-    ids, w = field.weights(found, mesh, a, b)
+    ids, w = field.weights(element, mesh, a, b)
     values = mi.Float(vertex[:, 0])
     got = np.array(sum((w[j] * dr.gather(mi.Float, values, ids[j]) for j in range(4)), mi.Float(0.0)))
     points = np.array(si.p, dtype=np.float64).T
@@ -96,12 +96,12 @@ def test_vertices_are_welded_across_sub_triangles_but_not_across_a_crease():
     field = patchfield.PatchField(table)
     positions = np.round(field.vertex_positions, 5)
     # the floor's sub-triangles share their corners: about one vertex per lattice point
-    floor = field.normals[:, 1] > 0.5
+    floor = field.element_normals[:, 1] > 0.5
     used = np.unique(field.vertex_ids[floor, :3])
     assert len(used) < 0.6 * 3 * floor.sum()
     # the corner line where the floor meets the wall (z = -1, y = 0) has a vertex per surface
     edge = np.flatnonzero((np.abs(positions[:, 2] + 1) < 1e-4) & (np.abs(positions[:, 1]) < 1e-4))
-    kinds = {bool(floor[p]) for p in np.flatnonzero(np.isin(field.vertex_ids, edge).any(axis=1))}
+    kinds = {bool(floor[e]) for e in np.flatnonzero(np.isin(field.vertex_ids, edge).any(axis=1))}
     assert kinds == {True, False}
     assert len({tuple(p) for p in positions[edge]}) < len(edge)     # coincident, not welded
 

@@ -148,6 +148,13 @@ class RayBundleIntegrator(SolutionIntegrator):
        - true
        - split long mesh triangles (above); false keeps the triangles as modelled (the
          papers' patches)
+     * - cluster
+       - bool
+       - true
+       - group mesh triangles much smaller than the patch size (longest edge below h / 2)
+         into patches of about h by grid cell and normal direction (within about 45
+         degrees), so that the patch count follows the surface area, not the triangle
+         count (``mi_plugins.mesh_parts``); false: one patch per small triangle
      * - hide_emitters
        - bool
        - false
@@ -266,7 +273,7 @@ class RayBundleIntegrator(SolutionIntegrator):
                              "give every chain its own sequence)")
         self.average_diffuse = p.bool("average_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
-        self.patch_size, self.subdivide = patch_parameters(p)
+        self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
@@ -341,8 +348,8 @@ class RayBundleIntegrator(SolutionIntegrator):
     def patch_table(self, scene):
         """The patches of ``scene`` (checked against the memory first), with back sides."""
         h = self.patch_size_for(scene)
-        limits.check_patches(limits.predicted_patches(scene, h, self.subdivide), available_memory())
-        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide)
+        limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster), available_memory())
+        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster)
 
     def _render_frame(self, frame):
         table = self.patch_table(frame.scene)
@@ -370,8 +377,8 @@ class RayBundleIntegrator(SolutionIntegrator):
     # ------------------------------------------------------------------ view-independent solutions
     def solution_settings(self):
         return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
-                self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.max_depth,
-                self.adaptive, self.point_sources)
+                self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.cluster,
+                self.max_depth, self.adaptive, self.point_sources)
 
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""

@@ -17,7 +17,8 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import tessellation
-from mi_plugins.meshtable import _is_mesh, _reflects_on_both_sides, require_meshes, split_levels
+from mi_plugins.mesh_parts import patch_count
+from mi_plugins.meshtable import _is_mesh, _reflects_on_both_sides, require_meshes
 from mi_plugins.limits import available_memory  # noqa: F401  (re-exported)
 
 #: bytes per lane (chain x patch side) with one order, and per further order
@@ -57,7 +58,7 @@ def default_chains(chains, patch_sides, resolution, available, orders=1):
     return max(1, min(int(chains), chains_that_fit(available / 4, patch_sides, resolution, orders)))
 
 
-def predicted_patches(scene, h, subdivide):
+def predicted_patches(scene, h, subdivide, cluster=True):
     """Patch sides the table of ``scene`` will have (as MeshTable counts them), without
     building it: a tiny ``patch_size`` is refused before it allocates anything."""
     require_meshes(scene, "ray_bundle")
@@ -67,7 +68,7 @@ def predicted_patches(scene, h, subdivide):
             params = mi.traverse(shape)
             faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
             p = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)[faces]
-            count = int(np.sum(split_levels(p, h if subdivide else None) ** 2))
+            count = patch_count(p, h, subdivide, cluster)
         else:
             count = tessellation.ShapePatches(shape, h).count
         total += count * (2 if _reflects_on_both_sides(shape) else 1)
