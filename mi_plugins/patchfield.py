@@ -10,10 +10,10 @@ smooth display and the exported meshes show the field reconstructed from them:
   wall, keeps a vertex per surface), across sub-triangles, triangles and shapes alike;
 - **vertex values**: at each vertex, an area-weighted least-squares plane through the
   values of the patches that share it, taken at their centroids, evaluated at the
-  vertex; where those do not span the plane (the corner of a quad), through the
-  patches that share a vertex with them too (exact for a field linear in position on a
-  flat surface, at interior, border and corner vertices alike; the area-weighted mean
-  only where even those do not span it). A vertex value is a fixed linear combination
+  vertex; where those do not span the plane (the corner of a quad, the inside of a
+  cluster), through the patches adjacent to them too (exact for a field linear in
+  position on a flat surface, at interior, border and corner vertices alike; the
+  area-weighted mean only where even those do not span it). A vertex value is a fixed linear combination
   of patch values, so unbiased patch values give unbiased vertex values (no clamping:
   keeping a sign would bias noisy solutions; a plane extrapolated to a border can make a
   vertex of a noisy solution negative);
@@ -86,6 +86,42 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         next_id += len(groups)
 
 
+#: the entries (i, j), i <= j, of a symmetric 3 x 3 matrix, in the order _inverses reads them
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def _tangents(normals):
+    """Two unit tangents (n, 3) each of the directions ``normals`` (normalised here)."""
+    n = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-30)
+    return t1, np.cross(n, t1)
+
+
+def _inverses(entries):
+    """(inverses (n, 3, 3), invertible (n,)) of symmetric 3 x 3 matrices given by their
+    upper entries (n, 6) (order _UPPER), by cofactors; invertible where the determinant
+    is not tiny against the matrix's size cubed (its smallest eigenvalue not tiny
+    against its trace: MIN_SPREAD); zeros elsewhere."""
+    a, b, c, d, e, f = entries.T
+    cof = np.stack([d * f - e * e, c * e - b * f, b * e - c * d, a * f - c * c, b * c - a * e, a * d - b * b],
+                   axis=1)
+    det = a * cof[:, 0] + b * cof[:, 1] + c * cof[:, 2]
+    trace = np.maximum(a + d + f, 1e-300)
+    ok = det > (MIN_SPREAD * trace) * (trace / 3.0) ** 2
+    full = cof[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+    return np.where(ok[:, None, None], full / np.where(ok, det, 1.0)[:, None, None], 0.0), ok
+
+
+def unique_pairs(a, b):
+    """The distinct pairs (a[i], b[i]) of two non-negative integer arrays, sorted by a then b."""
+    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+    base = int(b.max(initial=0)) + 1
+    key = np.unique(a * base + b)
+    return key // base, key % base
+
+
 class PatchField:
     """The vertices of the elements of ``table``'s front patches (triangles, sub-triangles,
     cells: a clustered patch has many) and the fit of patch values to them."""
@@ -123,21 +159,29 @@ class PatchField:
     # ------------------------------------------------------------------ fitting (numpy)
     def _patch_pairs(self, element, vertex):
         """The distinct (patch, vertex) pairs of (element, vertex) pairs."""
-        pairs = np.unique(np.stack([self.element_patch[element], vertex], axis=1), axis=0)
-        return pairs[:, 0], pairs[:, 1]
+        return unique_pairs(self.element_patch[element], vertex)
 
     def _prepare_fit(self):
         """Per vertex: the coefficients of its value in the values of the patches around it:
         the least-squares plane through the patches sharing it or, where those do not span
-        the plane (a corner), through the patches sharing a vertex with them."""
+        the plane (a corner), through the patches adjacent to them too. A vertex inside one
+        patch (a cluster's inner vertices) takes that patch's plane: fitted once per patch,
+        through it and its adjacent patches, evaluated at the vertex."""
         patch, vertex = self._patch_pairs(*self._element_incidence)
+        self._inner = (np.zeros(0, np.int64),) * 2 + (np.zeros((0, 2)),)
+        self._planes = (np.zeros(0, np.int64),) * 2 + (np.zeros((0, 3)),)
         if not len(patch):
             self._pairs, self.planes = (patch, vertex, np.zeros(0)), np.zeros(0, bool)
             return
+        inner = np.bincount(vertex, minlength=self.vertex_count)[vertex] == 1
+        if inner.any():
+            self._patch_planes(patch[inner], vertex[inner])
+            patch, vertex = patch[~inner], vertex[~inner]
         coef, plane = self._plane_fit(patch, vertex)
+        plane[self._inner[0]] = True
         weak = np.flatnonzero(~plane)
         if len(weak):
-            wide_patch, wide_vertex = self._second_ring(weak)
+            wide_patch, wide_vertex = self._second_ring(patch, vertex, weak)
             wide_coef, wide_plane = self._plane_fit(wide_patch, wide_vertex)
             use = wide_plane[wide_vertex]
             keep = ~np.isin(vertex, weak[wide_plane[weak]])
@@ -147,55 +191,87 @@ class PatchField:
         self._pairs = (patch, vertex, coef)
         self.planes = plane           # per vertex: a plane was fitted (else the mean)
 
-    def _second_ring(self, vertices):
-        """(patch, vertex) pairs of the patches of the elements that share a vertex with an
-        element around each of ``vertices``."""
-        element, vertex = self._element_incidence
-        order = np.argsort(vertex, kind="stable")
-        elements_of, start = element[order], np.searchsorted(vertex[order], np.arange(self.vertex_count + 1))
+    def _adjacency(self, needed):
+        """(a, b) pairs, sorted by a, of each patch of ``needed`` (bool per patch) and every
+        patch sharing a vertex with it (itself included)."""
+        patch, vertex = self._patch_pairs(*self._element_incidence)
+        touching = np.zeros(self.vertex_count, bool)
+        touching[vertex[needed[patch]]] = True
+        keep = touching[vertex]
+        order = np.argsort(vertex[keep], kind="stable")
+        by_vertex, sorted_vertex = patch[keep][order], vertex[keep][order]
+        start = np.searchsorted(sorted_vertex, np.arange(self.vertex_count + 1))
+        size = (start[1:] - start[:-1])[sorted_vertex]
+        rep = np.repeat(np.arange(len(by_vertex)), size)
+        within = np.arange(len(rep)) - np.repeat(np.cumsum(size) - size, size)
+        a, b = unique_pairs(by_vertex[rep], by_vertex[np.repeat(start[sorted_vertex], size) + within])
+        mine = needed[a]
+        return a[mine], b[mine]
 
-        def around(targets, centres):
-            """(target, element) for every element around each vertex of ``centres``."""
-            counts = start[centres + 1] - start[centres]
-            before = np.repeat(np.cumsum(counts) - counts, counts)
-            index = np.repeat(start[centres], counts) + np.arange(counts.sum()) - before
-            return np.repeat(targets, counts), elements_of[index]
-        v1, e1 = around(vertices, vertices)                # the first ring
-        used = np.arange(4)[None, :] < self.corner_count[e1][:, None]
-        corners = np.unique(np.stack([np.repeat(v1, 4).reshape(-1, 4)[used], self.vertex_ids[e1][used]], axis=1),
-                            axis=0)                        # (vertex, a corner of an element around it)
-        target, far = around(corners[:, 0], corners[:, 1])
-        return self._patch_pairs(far, target)
+    def _patch_planes(self, patch, vertex):
+        """The planes of the patches holding inner vertices (``patch``, ``vertex``: each
+        inner vertex and its one patch): per (patch, neighbour) pair the coefficients of the
+        plane's value and gradient in the neighbour's value, and the vertices' coordinates."""
+        needed = np.zeros(self.count, bool)
+        needed[patch] = True
+        centre, other = self._adjacency(needed)
+        t1, t2 = _tangents(self.normals[centre])
+        offset = self.centroids[other] - self.centroids[centre]
+        x, y = np.einsum("ij,ij->i", offset, t1), np.einsum("ij,ij->i", offset, t2)
+        weight = self.areas[other]
+        k = self.count
+        total = np.bincount(centre, weight, minlength=k)
+        scale = np.sqrt(np.maximum(np.bincount(centre, weight * (x * x + y * y), minlength=k)
+                                   / np.maximum(total, 1e-300), 1e-300))
+        rows = np.stack([np.ones(len(centre)), x / scale[centre], y / scale[centre]], axis=1)
+        inverse, ok = _inverses(np.stack([np.bincount(centre, weight * rows[:, i] * rows[:, j], minlength=k)
+                                          for i, j in _UPPER], axis=1))
+        coef = np.einsum("pij,pj->pi", inverse[centre], rows) * weight[:, None]
+        # a patch whose neighbours do not span a plane: its own value, flat
+        flat = ~ok[centre]
+        coef[flat] = np.where((other == centre)[flat][:, None], [[1.0, 0.0, 0.0]], 0.0)
+        self._planes = (centre, other, coef)
+        pt1, pt2 = _tangents(self.normals[patch])
+        local = self.vertex_positions[vertex] - self.centroids[patch]
+        self._inner = (vertex, patch, np.stack([np.einsum("ij,ij->i", local, pt1),
+                                                np.einsum("ij,ij->i", local, pt2)], axis=1) / scale[patch][:, None])
+
+    def _second_ring(self, patch, vertex, weak):
+        """(patch, vertex) pairs for the vertices ``weak``: their patches and every patch
+        adjacent to one of those."""
+        first = np.isin(vertex, weak)
+        needed = np.zeros(self.count, bool)
+        needed[patch[first]] = True
+        adjacent = np.stack(self._adjacency(needed), axis=1)
+        a_start = np.searchsorted(adjacent[:, 0], np.arange(self.count + 1))
+        v1, p1 = vertex[first], patch[first]
+        n = a_start[p1 + 1] - a_start[p1]
+        index = np.repeat(a_start[p1], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        return unique_pairs(adjacent[index, 1], np.repeat(v1, n))
+
+    def _sum(self, vertex, values):
+        """Per vertex, the sum of ``values`` (N,) or (N, k) over the pairs of ``vertex``."""
+        v = self.vertex_count
+        if values.ndim == 1:
+            return np.bincount(vertex, values, minlength=v)
+        return np.stack([np.bincount(vertex, values[:, k], minlength=v) for k in range(values.shape[1])], axis=1)
 
     def _plane_fit(self, patch, vertex):
         """(coefficient per pair, plane per vertex) of the area-weighted least-squares plane
         at each vertex through the centroid values of its ``patch`` pairs (the mean where the
         centroids do not span the plane)."""
-        v = self.vertex_count
-        n = np.zeros((v, 3))
-        np.add.at(n, vertex, self.normals[patch] * self.areas[patch, None])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        t1 = np.cross(n, helper)
-        t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-30)
-        t2 = np.cross(n, t1)
-        size = np.sqrt(np.maximum(self.areas[patch], 1e-30))
-        offset = self.centroids[patch] - self.vertex_positions[vertex]
-        rows = np.stack([np.ones(len(patch)), np.einsum("ij,ij->i", offset, t1[vertex]) / size,
-                         np.einsum("ij,ij->i", offset, t2[vertex]) / size], axis=1)
         weight = self.areas[patch]
-        normal_matrix = np.zeros((v, 3, 3))
-        np.add.at(normal_matrix, vertex, weight[:, None, None] * rows[:, :, None] * rows[:, None, :])
-        eig = np.linalg.eigvalsh(normal_matrix)
-        trace = np.maximum(np.trace(normal_matrix, axis1=1, axis2=2), 1e-300)
-        plane = eig[:, 0] > MIN_SPREAD * trace
-        inverse = np.zeros((v, 3, 3))
-        if plane.any():
-            inverse[plane] = np.linalg.inv(normal_matrix[plane])
+        t1, t2 = _tangents(self._sum(vertex, self.normals[patch] * weight[:, None]))
+        offset = self.centroids[patch] - self.vertex_positions[vertex]
+        x, y = np.einsum("ij,ij->i", offset, t1[vertex]), np.einsum("ij,ij->i", offset, t2[vertex])
+        total = self._sum(vertex, weight)
+        scale = np.sqrt(np.maximum(self._sum(vertex, weight * (x * x + y * y)) / np.maximum(total, 1e-300),
+                                   1e-300))[vertex]      # one length per vertex: a plane in (x, y)
+        rows = np.stack([np.ones(len(patch)), x / scale, y / scale], axis=1)
+        inverse, plane = _inverses(self._sum(vertex, weight[:, None] * (rows[:, [0, 0, 0, 1, 1, 2]]
+                                                                      * rows[:, [0, 1, 2, 1, 2, 2]])))
         # the plane's value at the vertex is a linear combination of the patch values
         coef = np.einsum("pj,pj->p", inverse[vertex][:, 0, :], rows) * weight
-        total = np.zeros(v)
-        np.add.at(total, vertex, weight)
         mean = weight / np.maximum(total[vertex], 1e-300)
         return np.where(plane[vertex], coef, mean), plane
 
@@ -207,7 +283,14 @@ class PatchField:
         flat = values.reshape(self.count, -1)
         patch, vertex, coef = self._pairs
         out = np.zeros((self.vertex_count, flat.shape[1]))
-        np.add.at(out, vertex, coef[:, None] * flat[patch])
+        for c in range(flat.shape[1]):
+            out[:, c] = np.bincount(vertex, coef * flat[patch, c], minlength=self.vertex_count)
+        centre, other, plane = self._planes
+        if len(centre):            # inner vertices: their patch's plane
+            inner, at, local = self._inner
+            for c in range(flat.shape[1]):    # (the channels: a few)
+                beta = [np.bincount(centre, plane[:, j] * flat[other, c], minlength=self.count) for j in range(3)]
+                out[inner, c] = beta[0][at] + local[:, 0] * beta[1][at] + local[:, 1] * beta[2][at]
         return out.reshape((self.vertex_count,) + shape)
 
     # ------------------------------------------------------------------ kernels

@@ -139,3 +139,73 @@ def test_sub_triangle_index_without_the_inverted_ones_would_fail(monkeypatch):
     si = table.surface_interaction(tri, mi.Point2f(0.3, 0.3))
     hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
     assert not np.array_equal(np.array(table.patch(hit)), np.arange(table.count))
+
+
+# ------------------------------------------------------------------ clusters of small triangles
+def _fine_mesh(n=24, size=2.0, bump=0.0, power=1.0):
+    """A size x size floor of 2 n^2 triangles (a gentle bump of height ``bump``; spacing
+    growing toward the border with ``power`` > 1), a mesh."""
+    u = np.linspace(-1.0, 1.0, n + 1)
+    g = size / 2 * np.sign(u) * np.abs(u) ** power
+    x, z = np.meshgrid(g, g)
+    y = bump * np.exp(-(x * x + z * z))
+    verts = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    faces = np.concatenate([np.stack([i, i + n + 1, i + 1], -1).reshape(-1, 3),
+                            np.stack([i + 1, i + n + 1, i + n + 2], -1).reshape(-1, 3)])
+    mesh = mi.Mesh("fine", len(verts), len(faces))
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = verts.ravel().astype(np.float32)
+    params["faces"] = faces.ravel().astype(np.uint32)
+    params.update()
+    return mi.load_dict({"type": "scene", "fine": mesh})
+
+
+def test_small_triangles_are_clustered_into_patches_of_the_patch_size():
+    """2 x 24^2 triangles 1/12 long and a patch size of 0.5: clusters whose count follows
+    the area (a grid of 0.5 over 2 x 2, about 16 cells), every triangle in exactly one,
+    the areas summing to the surface area; hits find their cluster."""
+    scene = _fine_mesh()
+    table = MeshTable(scene, "test", h=0.5)
+    assert table.element_count == 2 * 24 * 24 and 16 <= table.count <= 25
+    patch = table.elements_np["patch"]
+    assert patch.min() == 0 and patch.max() == table.count - 1 and len(patch) == table.element_count
+    assert table.areas_np.sum() == pytest.approx(4.0, rel=1e-6)
+    assert np.allclose(np.bincount(patch, table.elements_np["area"]), table.areas_np)
+    rng = budget.rng(7)
+    si = table.surface_interaction(dr.arange(mi.UInt32, table.count), mi.Point2f(rng.random(table.count),
+                                                                                   rng.random(table.count)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    assert np.array_equal(np.array(table.patch(hit)), np.arange(table.count))
+    assert MeshTable(scene, "test", h=0.5, cluster=False).count == table.element_count
+
+
+def test_points_of_a_cluster_are_uniform_in_area():
+    """A point of a cluster: an element chosen in proportion to its area, then a uniform
+    point in it: over many points, every triangle receives its share of the area
+    (chi-square); the test of the test: elements chosen uniformly (not by area) fail."""
+    scene = _fine_mesh(bump=0.6, power=1.6)
+    table = MeshTable(scene, "test", h=0.5)
+    assert table.choice_steps >= 3 and table.elements_np["area"].max() > 3 * table.elements_np["area"].min()
+    n = 400000
+    rng = budget.rng(8)
+    tri = mi.UInt32(rng.choice(table.count, size=n, p=table.areas_np / table.areas_np.sum()))
+    si = table.surface_interaction(tri, mi.Point2f(rng.random(n), rng.random(n)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    element = np.array(table.locate(hit)[1])
+    area = table.elements_np["area"]
+    assert budget.chi2_counts(np.bincount(element, minlength=len(area)), n * area / area.sum())
+    table._share = mi.Float(np.array(table._share) * 0 + _uniform_shares(table))
+    si = table.surface_interaction(tri, mi.Point2f(rng.random(n), rng.random(n)))
+    hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+    element = np.array(table.locate(hit)[1])
+    assert not budget.chi2_counts(np.bincount(element, minlength=len(area)), n * area / area.sum())
+
+
+def _uniform_shares(table):
+    """The cumulative shares of a choice by count instead of area."""
+    patch = table.elements_np["patch"]
+    counts = np.bincount(patch, minlength=table.count)
+    order = np.argsort(patch, kind="stable")
+    rank = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
+    return (rank + 1) / np.repeat(counts, counts)

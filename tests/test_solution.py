@@ -59,7 +59,11 @@ def _linear(points):
 def _field_error(shape, h):
     """Largest error of the interpolated field of a linear function (patch values at the
     centroids) at random points of every patch, evaluated by the kernels' weights."""
-    scene = _floor_scene(shape)
+    if shape == "clusters":
+        from test_meshtable import _fine_mesh
+        scene = _fine_mesh(power=1.6)
+    else:
+        scene = _floor_scene(shape)
     table = MeshTable(scene, "test", h=h)
     field = patchfield.PatchField(table)
     vertex = field.fit(_linear(field.centroids)[:, None])
@@ -77,10 +81,11 @@ def _field_error(shape, h):
     return float(np.abs(got - _linear(points)).max())
 
 
-@pytest.mark.parametrize("shape", ["rectangle", "mesh"])
-def test_a_linear_field_is_reconstructed_exactly(shape):
-    """Border and corner vertices included (least-squares planes), to float precision."""
-    assert _field_error(shape, 0.3) < 2e-5
+@pytest.mark.parametrize("shape,h", [("rectangle", 0.3), ("mesh", 0.3), ("clusters", 0.5)])
+def test_a_linear_field_is_reconstructed_exactly(shape, h):
+    """Border and corner vertices included (least-squares planes), the inner vertices of
+    clusters too (their cluster's plane), to float precision."""
+    assert _field_error(shape, h) < 2e-5
 
 
 def test_the_area_weighted_mean_alone_is_not_exact(monkeypatch):
@@ -117,6 +122,21 @@ CONSTANT = {"furnace": lambda: analytic.furnace(albedo=0.5, emission=0.5, geomet
 def test_displays_are_exact_in_constant_radiance_scenes(case, integrator, display):
     cfg = {"type": integrator, "display": display}
     out = analytic.check(CONSTANT[case](), cfg, spp=8, runs=16, seed=budget.seed(20))
+    assert out.passed, out
+
+
+@pytest.mark.parametrize("display", ["gather", "smooth"])
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_clustered_patches_are_exact_in_the_furnace(integrator, display):
+    """The furnace inside a sphere mesh of 1280 triangles, clustered by a patch size of
+    0.6 (about 90 patches): constant radiance stays exact."""
+    case = analytic.furnace(albedo=0.5, emission=0.5, geometry="sphere_mesh", resolution=8)
+    cfg = {"type": integrator, "display": display, "patch_size": 0.6}
+    scene = case.scene(cfg)
+    table = scene.integrator().patch_table(scene)
+    assert 40 < table.count < 200 < table.element_count
+    out = analytic.check(case, cfg, spp=8 if display == "smooth" else (1 if integrator == "ray_bundle" else 16),
+                         runs=16, seed=budget.seed(21))
     assert out.passed, out
 
 
