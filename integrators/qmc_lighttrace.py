@@ -9,7 +9,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc, support
+from mi_plugins import qmc, refinement, support
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.neighbours import share_with_neighbours
@@ -152,6 +152,26 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
        - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set, after every
          N of the particle phase's 8 ranges the image of the solution so far (smooth
          display, one sample per pixel)
+     * - refine
+       - bool
+       - false
+       - adaptive subdivision: after each of the first 4 of the particle phase's 8 ranges,
+         split the patches inside which the irradiance varies (a child's estimate differs
+         from the patch's by more than ``refine_threshold`` and 4 standard errors:
+         shadow boundaries, the pools of spot lights; ``mi_plugins.refinement``); a child
+         keeps what its parent measured there. Not with ``epsilon``
+     * - refine_threshold
+       - float
+       - 0.1
+       - > 0: the relative variation that splits a patch
+     * - min_patch_size
+       - float
+       - patch_size / 4
+       - > 0: patches are not split below this size
+     * - max_patches
+       - int
+       - 4 x the patches before refining
+       - >= 1: splits stop at this many patches
      * - hide_emitters
        - bool
        - false
@@ -206,6 +226,14 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
                              "sequence_depth=%d needs %d dimensions; sequence '%s' has %d"
                              % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
+        self.refine = p.bool("refine", False)
+        self.refine_threshold = p.float("refine_threshold", 0.1, lo=0, lo_open=True)
+        self.min_patch_size = p.float("min_patch_size", None, lo=0, lo_open=True, note="optional: patch_size / 4")
+        self.max_patches = p.int("max_patches", None, lo=1, note="optional: 4 x the patches before refining")
+        if self.refine and self.epsilon is not None:
+            raise p.conflict(("refine", "epsilon"), "refine=true with a fixed samples count (no epsilon: the "
+                                                    "refinement follows the particle phase's fixed ranges)")
+        self.refinements = []
         self.read_display(p)
         if self.display != "gather" and self.share_neighbors:
             raise p.conflict(("share_neighbors", "display"), "share_neighbors=true with display='gather' only (it "
@@ -233,20 +261,22 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     def solution_settings(self):
         return (self.sequence, self.scramble, self.sequence_depth, self.samples, self.epsilon, self.batch,
                 self.patience, self.max_samples, self.max_depth, self.layers.max_hits, self.patch_size,
-                self.subdivide, self.cluster)
+                self.subdivide, self.cluster, self.refine, self.refine_threshold, self.min_patch_size,
+                self.max_patches)
 
     def compute_solution(self, scene, table, seed, preview=None, **unused):
         """The particle phase as a view-independent solution (read tables of particle hits
         k >= 2; the direct light is added per point or per patch by the display)."""
         def partial(tables, paths, done, total):
-            preview(Solution(tables, table.areas_np, self._meta(scene, table, seed, paths)), done, total)
-        tables, error = particle_phase(self, scene, table, seed, rendering=self.display == "gather",
-                                       preview=partial if preview is not None else None)
-        return Solution(tables, table.areas_np, self._meta(scene, table, seed, self.paths_used), error=error)
+            at = refinement.replay(table, self.refinements)
+            preview(Solution(tables, at.areas_np, self._meta(scene, at, seed, paths)), done, total)
+        tables, error, refined = particle_phase(self, scene, table, seed, rendering=self.display == "gather",
+                                                preview=partial if preview is not None else None)
+        return Solution(tables, refined.areas_np, self._meta(scene, refined, seed, self.paths_used), error=error)
 
     def _meta(self, scene, table, seed, paths):
         return solution_meta(self, scene, table, seed, self.patch_size_for(scene), paths=int(paths),
-                             sequence=self.sequence)
+                             sequence=self.sequence, refinements=list(self.refinements))
 
     def patch_size_for(self, scene):
         """``patch_size``, or by default the scene's diagonal / 24."""
@@ -284,10 +314,12 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         check_gather_lanes(self.plugin, frame, self.gather_samples)
         table = self.patch_table(scene)
         if frame.task is not None:         # a distributed render: the particles were traced elsewhere
+            self.refinements = []
             solution = Solution(particle_phase(self, scene, table, frame.seed, given=frame.task)[0], table.areas_np,
                                 self._meta(scene, table, frame.seed, self.paths_used))
         else:
             solution = self.solution_for(scene, frame.seed, table, frame.sensor)
+            table = refinement.replay(table, solution.meta.get("refinements"))
         if self.display != "gather":
             return self.render_display(frame, solution, table)
         tables = solution.tables.reshape(-1, 3) if solution.tables.size else np.zeros((2, 3))   # (never width 1)

@@ -18,6 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import qmc, seeds
+from mi_plugins.refinement import CHILDREN, child_index
 from mi_plugins.lights import sample_light_rays
 from mi_plugins.integrators.qmc_store import FixedPoint
 from mi_plugins.integrators.qmc_surfaces import Surfaces, arrival_factor, geometric_cosine, side_of
@@ -41,23 +42,30 @@ def dimensions(sequence_depth):
     return 4 + 3 * int(sequence_depth)
 
 
-def trace_range(integ, scene, table, start, count, seed):
+def trace_range(integ, scene, table, start, count, seed, children=False):
     """Deposits of paths start .. start + count - 1 of ``integ``'s sequence, in chunks of
     at most CHUNK paths summed in order: (irradiance flux per layer and patch side
-    (layers, K, 2, 3), emitted power (3,)); zeros for a scene without emitters."""
+    (layers, K, 2, 3), emitted power (3,)); zeros for a scene without emitters. With
+    ``children``: per child of every patch side (layers, K, 2, 8, 3), and the hits per
+    child (K, 2, 8) as a third value (``mi_plugins.refinement``)."""
     layers = integ.layers
-    total, emitted, done = np.zeros((layers.count, table.count, 2, 3)), np.zeros(3), 0
+    shape = (layers.count, table.count, 2) + ((CHILDREN,) if children else ()) + (3,)
+    total, emitted, done, hits = np.zeros(shape), np.zeros(3), 0, np.zeros((table.count, 2, CHILDREN))
     surfaces = Surfaces(scene)
     while done < count and scene.emitters() and surfaces.any_diffuse:
         n = min(CHUNK, count - done)
-        deposit, power = trace_particles(integ, scene, table, surfaces, start + done, n, int(seed))
+        deposit, power, found = trace_particles(integ, scene, table, surfaces, start + done, n, int(seed),
+                                                children=children)
         total, emitted, done = total + deposit, emitted + power, done + n
-    return total, emitted
+        if children:
+            hits += found
+    return (total, emitted, hits) if children else (total, emitted)
 
 
-def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=None):
+def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=None, children=False):
     """Deposit the irradiance flux of paths start .. start + count - 1 (one kernel):
-    (per layer and patch side, numpy (layers, K, 2, 3); emitted power (3,))."""
+    (per layer and patch side, numpy (layers, K, 2, 3) (with ``children``: per child too,
+    (layers, K, 2, 8, 3)); emitted power (3,); with ``children``, hits per child (K, 2, 8))."""
     layers, depth = integ.layers, integ.sequence_depth
     index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)   # opaque: no recompiling
     dims = dimensions(depth)
@@ -72,7 +80,9 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
     emitted = np.array(power, dtype=np.float64)
     if scale is None:
         scale = FixedPoint.scale_for(DEPOSIT_GUESS * count * max(np.abs(emitted).max(initial=0.0), 1e-30))
-    store = FixedPoint(layers.count * table.count * 6, scale)   # [((layer * K + patch) * 2 + side) * 3 + c]
+    bins = CHILDREN if children else 1
+    store = FixedPoint(layers.count * table.count * 6 * bins, scale)  # [(((layer K + patch) 2 + side) bins + child) 3 + c]
+    hits_per_child = dr.zeros(mi.UInt32, table.count * 2 * bins)
     # the tail's stream: the render seed's, or a fixed one with the plain sequence
     tail = mi.PCG32(count, initstate=dr.opaque(mi.UInt64, seeds.stream(seed if integ.scramble else 0, "particles", 1)),
                     initseq=mi.UInt64(index))
@@ -88,9 +98,13 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
         bsdf = si.bsdf(ray)
         lit = surfaces.diffuse(si, active)
         value = power * arrival_factor(si)
-        slot = ((layers.layer(hits) * table.count + table.patch(si)) * 2 + side_of(si)) * 3
+        located = table.locate(si, lit)
+        side = (located[0] * 2 + side_of(si)) * bins + (child_index(table, located, lit) if children else 0)
+        slot = (layers.layer(hits) * (table.count * 2 * bins) + side) * 3
         for c in range(3):    # the three channels
             store.add(value[c], slot + c, lit)
+        if children:
+            dr.scatter_reduce(dr.ReduceOp.Add, hits_per_child, mi.UInt32(1), side, lit)
         spent += dr.select(lit, dr.abs(value.x) + dr.abs(value.y) + dr.abs(value.z), 0.0)
         # the next bounce: the sequence's numbers for the first `depth` bounces, then the tail's
         active &= hits < max_hits
@@ -115,9 +129,11 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
     total_abs = dr.sum(mi.Float64(spent))[0] if count else 0.0
     if not store.fits(total_abs):      # the guess was too low: trace again with room for what was deposited
         return trace_particles(integ, scene, table, surfaces, start, count, seed,
-                               FixedPoint.scale_for(4.0 * total_abs))
-    deposits = store.values().reshape(layers.count, table.count, 2, 3)
-    return deposits, emitted.sum(axis=1)
+                               FixedPoint.scale_for(4.0 * total_abs), children)
+    if children:
+        return (store.values().reshape(layers.count, table.count, 2, CHILDREN, 3), emitted.sum(axis=1),
+                np.array(hits_per_child, dtype=np.float64).reshape(table.count, 2, CHILDREN))
+    return store.values().reshape(layers.count, table.count, 2, 3), emitted.sum(axis=1), None
 
 
 def adjoint_weight(bsdf, ctx, si, bs, weight, active):

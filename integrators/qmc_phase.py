@@ -7,6 +7,9 @@ scene, which holds the integrator.
 """
 import numpy as np
 
+from mi_plugins import refinement
+from mi_plugins.refinement import CHILDREN
+
 from mi_plugins.integrators.patch_light import side_values
 from mi_plugins.integrators.qmc_particles import trace_range
 from mi_plugins.integrators.qmc_store import check_memory
@@ -15,17 +18,23 @@ from mi_plugins.integrators.qmc_store import check_memory
 #: their estimates gives the standard error per patch (paths: at least MIN_GROUP_PATHS each)
 GROUPS = 8
 MIN_GROUP_PATHS = 256
+#: with ``refine``: the ranges after which patches may split (the later ones estimate the
+#: refined patches), and the default patch budget (times the initial patches)
+REFINE_RANGES = 4
+REFINE_BUDGET = 4
 
 
 def particle_phase(integ, scene, table, seed, report=False, rendering=False, given=None, preview=None):
     """The particle phase of ``integ`` on ``scene`` (patches ``table``): returns (read tables
-    (T, K, 2, 3), standard error of the last table (K, 2, 3) or None). ``rendering``: skip
-    the tracing where a render reads no stored light; ``given`` = (deposits, paths): traced
-    elsewhere; ``preview(tables, paths, ranges done, ranges)`` after each range but the last."""
+    (T, K, 2, 3), standard error of the last table (K, 2, 3) or None, the patch table:
+    ``table`` refined where ``integ.refine`` split patches, its rounds in
+    ``integ.refinements``). ``rendering``: skip the tracing where a render reads no stored
+    light; ``given`` = (deposits, paths): traced elsewhere; ``preview(tables, paths, ranges
+    done, ranges)`` after each range but the last."""
     layers = integ.layers
-    check_memory(integ.plugin, layers, table.count, integ.max_depth)
-    areas = table.areas_np
-    integ.delta_e_history = []
+    check_memory(integ.plugin, layers, table.count * (CHILDREN if getattr(integ, "refine", False) else 1),
+                 integ.max_depth)
+    integ.delta_e_history, integ.refinements = [], []
     shape = (layers.count, table.count, 2, 3)
     error = None
     if given is not None:
@@ -35,10 +44,13 @@ def particle_phase(integ, scene, table, seed, report=False, rendering=False, giv
                              "max_depth need shape %s" % (total.shape, shape))
     elif rendering and layers.tables == 0:   # a render that reads no stored light
         total, done = np.zeros(shape), 0
+    elif integ.epsilon is None and getattr(integ, "refine", False):
+        total, done, table = _refining(integ, scene, table, seed, preview)
     elif integ.epsilon is None:
         total, done, error = _ranges(integ, scene, table, seed, preview)
     else:
         total, done = _adaptive(integ, scene, table, seed)
+    areas = table.areas_np
     integ.paths_used = done
     integ.irradiance = total / max(done, 1) / areas[None, :, None, None]
     integ.reflected_radiance = integ.triangle_radiance = None
@@ -48,7 +60,7 @@ def particle_phase(integ, scene, table, seed, report=False, rendering=False, giv
         integ.triangle_radiance = integ.reflected_radiance + emission
     integ.triangle_areas = areas
     integ.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
-    return layers.tables_from(integ.irradiance), error
+    return layers.tables_from(integ.irradiance), error, table
 
 
 def _ranges(integ, scene, table, seed, preview):
@@ -70,6 +82,47 @@ def _ranges(integ, scene, table, seed, preview):
         return total, n, None
     stack = np.concatenate(parts)        # (groups, K, 2, 3): independent ranges, equal weights
     return total, n, stack.std(axis=0, ddof=1) / np.sqrt(groups)
+
+
+def _refining(integ, scene, table, seed, preview):
+    """``samples`` paths in GROUPS ranges, the patches refined after each of the first
+    REFINE_RANGES (``mi_plugins.refinement``): (deposits scaled to all the paths, paths,
+    refined table). A patch's estimate comes from the paths traced since its parent was
+    made (its share of the parent's children then, and its own deposits since): unbiased,
+    every range being an unbiased estimate of every patch."""
+    n = int(integ.samples)
+    groups = GROUPS if n >= GROUPS * MIN_GROUP_PATHS else 1
+    bounds = [n * g // groups for g in range(groups + 1)]
+    layers, k = integ.layers.count, table.front_count
+    total = np.zeros((layers, k, 2, 3))
+    children, hits = np.zeros((layers, k, 2, CHILDREN, 3)), np.zeros((k, 2, CHILDREN))
+    since, made = np.zeros(k), np.zeros(k)     # paths before each patch's estimate and children began
+    budget = integ.max_patches or REFINE_BUDGET * k
+    min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
+    for g in range(groups):
+        deposit, _, found = trace_range(integ, scene, table, bounds[g], bounds[g + 1] - bounds[g], seed, children=True)
+        total += deposit.sum(axis=3)
+        children += deposit
+        hits += found
+        if g < min(REFINE_RANGES, groups - 1):
+            split = refinement.choose(table, children.sum(axis=0).mean(axis=-1), hits, integ.refine_threshold,
+                                      min_size, budget)
+            if len(split):
+                table, origin, which = refinement.refined(table, split)
+                integ.refinements.append(split.tolist())
+                child = which >= 0
+                pick = np.maximum(which, 0)
+                parent = np.take_along_axis(children[:, origin], pick[None, :, None, None, None], axis=3)[:, :, :, 0]
+                total = np.where(child[None, :, None, None], parent, total[:, origin])
+                since = np.where(child, made[origin], since[origin])
+                made = np.where(child, bounds[g + 1], made[origin])
+                children = np.where(child[None, :, None, None, None], 0.0, children[:, origin])
+                hits = np.where(child[:, None, None], 0.0, hits[origin])
+        if preview is not None and g + 1 < groups:
+            done = bounds[g + 1] - since
+            preview(integ.layers.tables_from(total / np.maximum(done, 1)[None, :, None, None]
+                                             / table.areas_np[None, :, None, None]), bounds[g + 1], g + 1, groups)
+    return total * (n / np.maximum(n - since, 1))[None, :, None, None], n, table
 
 
 def _adaptive(integ, scene, table, seed):

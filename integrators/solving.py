@@ -81,9 +81,11 @@ class SolutionIntegrator(CoreIntegrator):
 
     def solve(self, scene, seed=0):
         """The view-independent solution of ``scene``, complete (geometry, direct light)."""
+        from mi_plugins import refinement
         self.check_scene(scene, None)
         table = self.patch_table(scene)
-        return self.solution_for(scene, seed, table).complete(scene, table)
+        solution = self.solution_for(scene, seed, table)
+        return solution.complete(scene, refinement.replay(table, solution.meta.get("refinements")))
 
     def use_solution(self, solution):
         """Render from ``solution`` (e.g. ``Solution.load(path, scene)``): every later render

@@ -122,10 +122,11 @@ def mesh_part(verts, faces, uv, flipped, h, subdivide=True, cluster=True):
     groups = cluster_triangles(p, normal, h) if cluster and h is not None and len(faces) else None
     # a clustered triangle is small, hence not split: one element per parent there
     elem_patch = np.arange(n) if groups is None else _relabel(groups[parent], level)
-    return dict(kind=np.zeros(n, np.uint32), prim=parent.astype(np.uint32), nu=0, nv=0,
-                area=(area / count)[parent], normal=normal[parent], triangle=tri, uv=tuv, bounds=np.zeros((n, 4)),
-                frame=np.zeros((n, 21)), points=p.reshape(-1, 3), parents=p, level=level,
-                first=np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64), patch=elem_patch)
+    return with_hierarchy(dict(kind=np.zeros(n, np.uint32), prim=parent.astype(np.uint32), nu=0, nv=0,
+                               area=(area / count)[parent], normal=normal[parent], triangle=tri, uv=tuv,
+                               bounds=np.zeros((n, 4)), frame=np.zeros((n, 21)), points=p.reshape(-1, 3), parents=p,
+                               level=level, first=np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64),
+                               patch=elem_patch))
 
 
 def _relabel(groups, level):
@@ -143,7 +144,94 @@ def analytic_part(shape, h):
     box = shape.bbox()
     lo, hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
     corners = np.array([[(hi if k >> j & 1 else lo)[j] for j in range(3)] for k in range(8)])
-    return dict(kind=np.full(n, cells.kind, np.uint32), prim=np.zeros(n, np.uint32), nu=cells.nu, nv=cells.nv,
-                area=cells.areas, normal=cells.normals, triangle=np.zeros((n, 3, 3)), uv=np.zeros((n, 3, 2)),
-                bounds=cells.bounds, frame=np.tile(cells.frame.columns, (n, 1)), points=corners, patch=np.arange(n),
-                centres=cells.centres)
+    return with_hierarchy(dict(kind=np.full(n, cells.kind, np.uint32), prim=np.zeros(n, np.uint32), nu=cells.nu,
+                               nv=cells.nv, area=cells.areas, normal=cells.normals, triangle=np.zeros((n, 3, 3)),
+                               uv=np.zeros((n, 3, 2)), bounds=cells.bounds, frame=np.tile(cells.frame.columns, (n, 1)),
+                               points=corners, patch=np.arange(n), centre=cells.centres,
+                               surface_area=cells.surface_area))
+
+
+# ---------------------------------------------------------------------------- refinement
+#: the most times an element is split (each split: 4 children)
+MAX_DEPTH = 6
+
+
+def leaves(part):
+    """Bool per element: a leaf (not split)."""
+    return part["child"] < 0
+
+
+def refine(part, split, h):
+    """A copy of ``part`` with the patches ``split`` (local patch indices) split in two to
+    four: a patch of one element (a triangle, a sub-triangle, a cell) into the element's
+    4 children (the level-2 sub-triangles of :func:`sub_triangles`, the uv quadrants of a
+    cell), appended as elements of their own; a cluster into the octants of its grid
+    cell (``h``: the part's patch size). Children take patch numbers after the part's
+    others; ``parent`` maps every element to the one it was split from (-1)."""
+    part = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
+    patch, leaf = part["patch"], leaves(part)
+    elements_of = np.bincount(patch[leaf], minlength=int(patch.max()) + 1)
+    split = np.unique(np.asarray(split, np.int64))
+    single = split[elements_of[split] == 1]
+    clusters = split[elements_of[split] > 1]
+    grow = np.flatnonzero(leaf & np.isin(patch, single) & (part["depth"] < MAX_DEPTH))
+    next_patch = int(patch.max()) + 1
+    if len(clusters):
+        members = np.flatnonzero(leaf & np.isin(patch, clusters))
+        cell = h / 2.0 ** (part["depth"][members] + 1)
+        octant = np.floor(part["centre"][members] / cell[:, None]).astype(np.int64) % 2
+        key = patch[members] * 8 + octant[:, 0] * 4 + octant[:, 1] * 2 + octant[:, 2]
+        _, group = np.unique(key, return_inverse=True)
+        patch[members] = next_patch + group.ravel()
+        part["depth"][members] += 1
+        next_patch = int(patch.max()) + 1
+    if len(grow):
+        part = _split_elements(part, grow, next_patch)
+    part["patch"] = _renumber(part["patch"], leaves(part))
+    return part
+
+
+def _split_elements(part, grow, next_patch):
+    """Append the 4 children of each element of ``grow`` (numbered from ``next_patch``)."""
+    n, k = len(part["area"]), len(grow)
+    mesh = part["kind"][grow] == 0
+    w = sub_triangles(2)                                       # (4, 3, 2) corner weights
+    weights = np.stack([1 - w[..., 0] - w[..., 1], w[..., 0], w[..., 1]], axis=-1)   # (4, 3, 3)
+    tri = np.einsum("jkc,ncd->njkd", weights, part["triangle"][grow]).reshape(-1, 3, 3)
+    uv = np.einsum("jkc,ncd->njkd", weights, part["uv"][grow]).reshape(-1, 3, 2)
+    u0, u1, v0, v1 = part["bounds"][grow].T
+    um, vm = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+    bounds = np.stack([np.stack(b, axis=1) for b in ((u0, um, v0, vm), (um, u1, v0, vm), (u0, um, vm, v1),
+                                                    (um, u1, vm, v1))], axis=1).reshape(-1, 4)
+    rep = lambda a: np.repeat(a, 4, axis=0)
+    kind = rep(part["kind"][grow])
+    area = np.where(rep(mesh), rep(part["area"][grow]) / 4.0,
+                    tessellation.area_share(int(kind[0]) if (~mesh).any() else 1, bounds)
+                    * part.get("surface_area", 0.0))
+    centre = np.where(rep(mesh)[:, None], tri.mean(axis=1), rep(part["centre"][grow]))
+    out = dict(part)
+    for key, value in (("kind", kind), ("prim", rep(part["prim"][grow])), ("area", area),
+                       ("normal", rep(part["normal"][grow])), ("triangle", tri), ("uv", uv), ("bounds", bounds),
+                       ("frame", rep(part["frame"][grow])), ("centre", centre),
+                       ("depth", rep(part["depth"][grow]) + 1), ("child", np.full(4 * k, -1, np.int64)),
+                       ("parent", rep(grow)), ("patch", next_patch + np.arange(4 * k))):
+        out[key] = np.concatenate([part[key], value])
+    out["child"][grow] = n + 4 * np.arange(k)
+    out["patch"][grow] = -1
+    return out
+
+
+def _renumber(patch, leaf):
+    """Patch labels of the leaves renumbered 0 .. P-1 by first appearance; -1 elsewhere."""
+    out = np.full(len(patch), -1, np.int64)
+    _, first, inverse = np.unique(patch[leaf], return_index=True, return_inverse=True)
+    out[leaf] = np.argsort(np.argsort(first))[inverse.ravel()]
+    return out
+
+
+def with_hierarchy(part):
+    """``part`` with the fields of refinement: no element split yet."""
+    n = len(part["area"])
+    part.setdefault("centre", part["triangle"].mean(axis=1))
+    part.update(child=np.full(n, -1, np.int64), parent=np.full(n, -1, np.int64), depth=np.zeros(n, np.int64))
+    return part

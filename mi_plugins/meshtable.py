@@ -84,14 +84,17 @@ class MeshTable:
 
     NONE = 0xFFFFFFFF
 
-    def __init__(self, scene, who="mi_plugins", h=None, back_sides=False, subdivide=True, cluster=True):
+    def __init__(self, scene, who="mi_plugins", h=None, back_sides=False, subdivide=True, cluster=True, parts=None):
         require_meshes(scene, who)
-        self.scene = scene
+        self.scene, self.who, self.back_sides = scene, who, back_sides
         self.meshes = self.shapes = list(scene.shapes())
         if h is None:
             h = default_patch_size(scene)
-        parts = [mesh_part(*_mesh_arrays(m), m.has_flipped_normals(), h, subdivide, cluster) if _is_mesh(m)
-                 else analytic_part(m, h) for m in self.shapes]
+        self.h = float(h)
+        if parts is None:
+            parts = [mesh_part(*_mesh_arrays(m), m.has_flipped_normals(), h, subdivide, cluster) if _is_mesh(m)
+                     else analytic_part(m, h) for m in self.shapes]
+        self.parts = parts                 # numpy, per shape (mi_plugins.mesh_parts), for refined()
         elements = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         patches = np.array([int(part["patch"].max()) + 1 if len(part["patch"]) else 0 for part in parts], np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(patches)[:-1]]).astype(np.uint32)
@@ -99,12 +102,15 @@ class MeshTable:
         self.front_count = int(patches.sum())
         self.element_count = int(elements.sum())
         elem = lambda key: np.concatenate([part[key] for part in parts])
-        element_patch = np.concatenate([part["patch"] + off for part, off in zip(parts, self.face_offsets)])
+        leaf = elem("child") < 0
+        element_patch = np.concatenate([np.where(part["patch"] >= 0, part["patch"] + off, -1)
+                                        for part, off in zip(parts, self.face_offsets)])
         shape_index = np.repeat(np.arange(len(parts), dtype=np.uint32), patches)
-        # per front patch: area, area-weighted normal, kind of its elements
+        # per front patch: area, area-weighted normal of its (leaf) elements
         e_area, e_normal = elem("area"), elem("normal")
-        area = np.bincount(element_patch, e_area, minlength=self.front_count)
-        normal = np.stack([np.bincount(element_patch, e_area * e_normal[:, k], minlength=self.front_count)
+        on = np.where(leaf, element_patch, 0)
+        area = np.bincount(on, np.where(leaf, e_area, 0.0), minlength=self.front_count)
+        normal = np.stack([np.bincount(on, np.where(leaf, e_area * e_normal[:, k], 0.0), minlength=self.front_count)
                            for k in range(3)], axis=1)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
         # back sides
@@ -123,7 +129,7 @@ class MeshTable:
         #: points whose convex hull holds every patch (triangle vertices, analytic shapes' boxes)
         self.points_np = np.concatenate([part["points"] for part in parts])
         self._lookups(scene, parts, elements)
-        self._elements(parts, element_patch, e_area)
+        self._elements(parts, element_patch, e_area, leaf)
         self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
         self.surface_normal = mi.Normal3f(*normal[self.front_of_np].T)   # the surface's (Mitsuba's si.n)
         self.area = mi.Float(self.areas_np)
@@ -163,15 +169,20 @@ class MeshTable:
         self._nu_by_id = by_id([p["nu"] for p in parts])
         self._nv_by_id = by_id([p["nv"] for p in parts])
 
-    def _elements(self, parts, element_patch, e_area):
-        """Per element: geometry for kernels; per front patch: its elements sorted, with the
-        cumulative share of its area (choosing an element uniformly in area)."""
+    def _elements(self, parts, element_patch, e_area, leaf):
+        """Per element: geometry for kernels and its first child (split elements); per front
+        patch: its leaf elements sorted, with the cumulative share of its area (choosing an
+        element uniformly in area)."""
         elem = lambda key: np.concatenate([part[key] for part in parts])
         tri, uv, bounds, frame, kind = elem("triangle"), elem("uv"), elem("bounds"), elem("frame"), elem("kind")
-        centres = np.concatenate([part.get("centres", part["triangle"].mean(axis=1)) for part in parts])
         shape = np.repeat(np.arange(len(parts)), [len(part["area"]) for part in parts])
+        child = np.concatenate([np.where(part["child"] >= 0, part["child"] + off, -1)
+                                for part, off in zip(parts, self.element_offsets)])
         self.elements_np = dict(triangle=tri, kind=kind, bounds=bounds, frame=frame, area=e_area, normal=elem("normal"),
-                                patch=element_patch, centre=centres, shape=shape)
+                                patch=element_patch, centre=elem("centre"), shape=shape, leaf=leaf, depth=elem("depth"))
+        #: the most times an element was split (the descent of locate())
+        self.max_depth = int(elem("depth").max(initial=0))
+        self._child = mi.UInt32(np.where(child >= 0, child, self.NONE).astype(np.uint32))
         self.kind_np = kind
         self.p0, self.e1, self.e2 = mi.Point3f(*tri[:, 0].T), mi.Vector3f(*(tri[:, 1] - tri[:, 0]).T), \
             mi.Vector3f(*(tri[:, 2] - tri[:, 0]).T)
@@ -182,15 +193,14 @@ class MeshTable:
         self.bounds = tuple(mi.Float(bounds[:, k]) for k in range(4))
         self.frame = [mi.Float(frame[:, k]) for k in range(frame.shape[1])]
         self.element_normal = mi.Normal3f(*elem("normal").T)
-        self.element_patch = mi.UInt32(element_patch.astype(np.uint32))
-        order = np.argsort(element_patch, kind="stable")
-        counts = np.bincount(element_patch, minlength=self.front_count)
+        self.element_patch = mi.UInt32(np.where(leaf, element_patch, self.NONE).astype(np.uint32))
+        leaves = np.flatnonzero(leaf)
+        order = leaves[np.argsort(element_patch[leaves], kind="stable")]
+        counts = np.bincount(element_patch[leaves], minlength=self.front_count)
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        share = np.cumsum(e_area[order]) - np.repeat(np.cumsum(np.bincount(element_patch, e_area,
-                                                                            minlength=self.front_count))
-                                                     - np.bincount(element_patch, e_area, minlength=self.front_count),
-                                                     counts)
-        share /= np.maximum(np.repeat(np.bincount(element_patch, e_area, minlength=self.front_count), counts), 1e-300)
+        per_patch = np.bincount(element_patch[leaves], e_area[leaves], minlength=self.front_count)
+        share = np.cumsum(e_area[order]) - np.repeat(np.cumsum(per_patch) - per_patch, counts)
+        share /= np.maximum(np.repeat(per_patch, counts), 1e-300)
         self._sorted = mi.UInt32(order.astype(np.uint32))
         self._share = mi.Float(share)
         self._patch_first = mi.UInt32(starts.astype(np.uint32))
@@ -234,8 +244,41 @@ class MeshTable:
         sub, a, b = sub_triangle_coords(level, (a22 * r1 - a12 * r2) / det, (a11 * r2 - a12 * r1) / det)
         first = dr.gather(mi.UInt32, self._first, parent, on_mesh)
         element = dr.select(mesh, first + sub, base + iv * nu + iu)
+        a, b = dr.select(mesh, a, fu), dr.select(mesh, b, fv)
+        for _ in range(self.max_depth):     # down the split elements (refinement levels: a few)
+            child = dr.gather(mi.UInt32, self._child, element, active)
+            split = mi.Bool(active) & (child != self.NONE)
+            sub, sa, sb = sub_triangle_coords(2, a, b)
+            cu, cv = a >= 0.5, b >= 0.5
+            quadrant = dr.select(cv, 2, 0) + dr.select(cu, 1, 0)
+            ca, cb = 2.0 * a - dr.select(cu, 1.0, 0.0), 2.0 * b - dr.select(cv, 1.0, 0.0)
+            element = dr.select(split, child + dr.select(mesh, sub, quadrant), element)
+            a = dr.select(split, dr.select(mesh, sa, ca), a)
+            b = dr.select(split, dr.select(mesh, sb, cb), b)
         patch = dr.gather(mi.UInt32, self.element_patch, element, active)
-        return patch, element, mesh, dr.select(mesh, a, fu), dr.select(mesh, b, fv)
+        return patch, element, mesh, a, b
+
+    def refined(self, split):
+        """A new table of the same scene with the front patches ``split`` (global indices)
+        split (``mi_plugins.mesh_parts.refine``), and (new table, old patch of every new
+        front patch: where its elements came from)."""
+        from mi_plugins.mesh_parts import refine
+        split = np.asarray(split, np.int64)
+        owner = self.shape_index_np[:self.front_count]
+        parts = [refine(part, split[owner[split] == k] - int(self.face_offsets[k]), self.h) if np.any(owner[split] == k)
+                 else part for k, part in enumerate(self.parts)]
+        table = MeshTable(self.scene, self.who, h=self.h, back_sides=self.back_sides, parts=parts)
+        origin = np.zeros(table.front_count, np.int64)
+        for k, (part, before) in enumerate(zip(parts, self.parts)):
+            leaf = part["child"] < 0
+            element = np.flatnonzero(leaf)
+            ancestor = element.copy()
+            for _ in range(int(part["depth"].max(initial=0)) + 1):   # up to an element of the old table
+                new = (ancestor >= len(before["area"])) | (ancestor < 0)
+                ancestor = np.where(new, part["parent"][np.maximum(ancestor, 0)], ancestor)
+            old = before["patch"][ancestor]
+            origin[part["patch"][element] + int(table.face_offsets[k])] = old + int(self.face_offsets[k])
+        return table, origin
 
     @property
     def total_area(self):

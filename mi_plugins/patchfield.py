@@ -135,14 +135,15 @@ class PatchField:
                                 _analytic_corners(kind, el["bounds"], el["frame"]))
         self.corner_count = np.where(mesh, 3, 4)
         self.kind, self.element_patch, self.element_normals = kind, el["patch"], el["normal"]
-        self.element_shape = el["shape"]
+        self.element_shape, self.leaf = el["shape"], el["leaf"]
         self.normals = table.normals_np[:self.count]
         self.areas = table.areas_np[:self.count]
-        weight = el["area"][:, None]           # patch centroids: area-weighted element centres
-        self.centroids = np.stack([np.bincount(self.element_patch, (weight * el["centre"])[:, k],
-                                               minlength=self.count) for k in range(3)], axis=1) \
-            / np.maximum(self.areas, 1e-300)[:, None]
-        used = np.arange(4)[None, :] < self.corner_count[:, None]
+        leaf = el["leaf"]                      # (split elements are not shown: their children are)
+        weight = np.where(leaf, el["area"], 0.0)[:, None]    # patch centroids: area-weighted element centres
+        on = np.where(leaf, self.element_patch, 0)
+        self.centroids = np.stack([np.bincount(on, (weight * el["centre"])[:, k], minlength=self.count)
+                                   for k in range(3)], axis=1) / np.maximum(self.areas, 1e-300)[:, None]
+        used = (np.arange(4)[None, :] < self.corner_count[:, None]) & leaf[:, None]
         element_of = np.repeat(np.arange(self.elements), 4).reshape(-1, 4)[used]
         points = self.corners[used]
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0

@@ -64,7 +64,7 @@ def write_meshes(solution, folder, display_colors=False):
     shapes = solution.meta["shapes"]
     paths, used = [], set()
     for k, shape in enumerate(shapes):
-        ids, faces = shape_faces(field, np.flatnonzero(field.element_shape == k))
+        ids, faces = shape_faces(field, np.flatnonzero((field.element_shape == k) & field.leaf))
         name = re.sub(r"[^A-Za-z0-9_.-]+", "_", shape["id"] or "shape") or "shape"
         while name in used:
             name += "_%d" % k

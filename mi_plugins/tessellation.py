@@ -116,13 +116,9 @@ class ShapePatches:
         u0, u1, v0, v1 = iu / nu, (iu + 1) / nu, iv / nv, (iv + 1) / nv
         if kind == 2:               # rings of equal area: r in [sqrt(k/n), sqrt((k+1)/n)]
             u0, u1 = np.sqrt(u0), np.sqrt(u1)
-            share = (u1 ** 2 - u0 ** 2) * (v1 - v0)
-        elif kind == 3:             # dphi / 2pi * (cos th0 - cos th1) / 2
-            share = (u1 - u0) * 0.5 * (np.cos(np.pi * v0) - np.cos(np.pi * v1))
-        else:
-            share = (u1 - u0) * (v1 - v0)
         self.bounds = np.stack([u0, u1, v0, v1], axis=1)
-        self.areas = share * float(dr.slice(shape.surface_area()))
+        self.surface_area = float(dr.slice(shape.surface_area()))
+        self.areas = area_share(kind, self.bounds) * self.surface_area
         mid_u = np.sqrt(0.5 * (u0 ** 2 + u1 ** 2)) if kind == 2 else 0.5 * (u0 + u1)
         mid_v = (np.arccos(0.5 * (np.cos(np.pi * v0) + np.cos(np.pi * v1))) / np.pi) if kind == 3 else 0.5 * (v0 + v1)
         self.centres, self.normals = _world(self.frame, kind, mid_u, mid_v)
@@ -130,6 +126,17 @@ class ShapePatches:
     @property
     def count(self):
         return self.nu * self.nv
+
+
+def area_share(kind, bounds):
+    """The share of its shape's area of each cell with ``bounds`` (n, 4): u0, u1, v0, v1
+    (numpy; the disk's u bounds are radii)."""
+    u0, u1, v0, v1 = bounds.T
+    if kind == 2:
+        return (u1 ** 2 - u0 ** 2) * (v1 - v0)
+    if kind == 3:                   # dphi / 2pi * (cos th0 - cos th1) / 2
+        return (u1 - u0) * 0.5 * (np.cos(np.pi * v0) - np.cos(np.pi * v1))
+    return (u1 - u0) * (v1 - v0)
 
 
 def cell_of(kind, nu, nv, uv):

@@ -106,6 +106,10 @@ TABLE = {
         "hide_emitters": BOOL(),
         "display": CHOICE(("gather", "smooth", "patches", "baked")),
         "preview_every": INT(0, good=[0, 4]),
+        "refine": BOOL(),
+        "refine_threshold": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
+        "min_patch_size": FLOAT(0, lo_open=True, good=[0.01, 1.0]),
+        "max_patches": INT(1, good=[1, 5000]),
     },
     "stochastic_ray": {
         "iterations": INT(1, hi=1 << 20, good=[1, 32]),
@@ -465,6 +469,7 @@ def test_rules_between_parameters_name_both():
         ("qmc_lighttrace", {"sequence": "halton", "sequence_depth": 200}, ("sequence_depth", "sequence")),
         ("qmc_lighttrace", {"display": "smooth", "share_neighbors": True}, ("share_neighbors", "display")),
         ("qmc_lighttrace", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
+        ("qmc_lighttrace", {"refine": True, "epsilon": 0.01}, ("refine", "epsilon")),
         ("ray_bundle", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
         ("phong", {"diffuse_reflectance": 0.7, "specular_reflectance": 0.5},
          ("diffuse_reflectance", "specular_reflectance")),

@@ -1,0 +1,168 @@
+"""Adaptive subdivision: patches split where the light they receive varies.
+
+A solve measures, for every patch side, what arrives in each of its *children*: the 4
+level-2 sub-triangles of a triangle, the 4 uv quadrants of a cell, the up to 8 octants of
+a cluster's grid cell (:func:`child_index`: the same children ``MeshTable.refined``
+makes). After a stage of the solve, :func:`choose` splits the patches where some child's
+irradiance differs from the patch's by more than ``threshold`` of it and by more than
+:data:`Z` standard errors (a child's relative error ~ 1 / sqrt(its hits)): the variation
+of the incoming radiance inside the patch (the stochastic-iteration paper's remedy:
+"much more robust than methods which examine the radiosity gradient"; it finds shadow
+boundaries and highlights inside a patch), the most varying first, down to ``min_size``
+and within ``budget`` patches. A uniform field splits nothing: its children agree to
+their noise.
+
+:func:`refined` makes the new table and says, for every new patch, which patch and which
+child of it it came from, so that a child starts from what its parent measured there.
+The rounds of a solve are replayed from ``Solution.meta['refinements']`` (:func:`replay`).
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.meshtable import sub_triangle_coords
+from mi_plugins import tessellation
+
+#: children per patch side (an octant of a cluster's cell; 4 on triangles and cells)
+CHILDREN = 8
+#: a child differs significantly beyond this many of its standard errors
+Z = 4.0
+
+
+def element_octants(table):
+    """numpy per element: the octant (0 .. 7) of its centre in its cluster's grid cell at
+    the next depth (the children of a cluster; 0 for elements of single-element patches)."""
+    el = table.elements_np
+    cell = table.h / 2.0 ** (el["depth"] + 1)
+    octant = np.floor(el["centre"] / cell[:, None]).astype(np.int64) % 2
+    return (octant[:, 0] * 4 + octant[:, 1] * 2 + octant[:, 2]).astype(np.uint32)
+
+
+def _jit(table):
+    """The arrays :func:`child_index` reads (made once per table)."""
+    if getattr(table, "_octant", None) is None:
+        table._octant = mi.UInt32(element_octants(table))
+    return table._octant
+
+
+def child_index(table, located, active=True):
+    """Per hit (``located``: ``table.locate(si)``), the child 0 .. 7 of its patch holding it."""
+    patch, element, mesh, a, b = located
+    many = dr.gather(mi.UInt32, table._patch_elements, patch, active) > 1
+    sub = sub_triangle_coords(2, a, b)[0]
+    quadrant = dr.select(b >= 0.5, 2, 0) + dr.select(a >= 0.5, 1, 0)
+    single = dr.select(mesh, sub, quadrant)
+    return dr.select(many, dr.gather(mi.UInt32, _jit(table), element, active), single)
+
+
+def child_areas(table):
+    """(K, 8) numpy: the area of every child of every front patch."""
+    el = table.elements_np
+    k = table.front_count
+    leaf = el["leaf"]
+    patch = el["patch"]
+    out = np.zeros((k, CHILDREN))
+    counts = np.bincount(patch[leaf], minlength=k)
+    many = counts[np.maximum(patch, 0)] > 1
+    cl = leaf & many
+    np.add.at(out, (patch[cl], element_octants(table)[cl].astype(np.int64)), el["area"][cl])
+    one = leaf & ~many
+    mesh = one & (el["kind"] == 0)
+    out[patch[mesh], :4] = el["area"][mesh, None] / 4.0
+    for part, offset, first in zip(table.parts, table.face_offsets, table.element_offsets):
+        cells = np.flatnonzero((part["child"] < 0) & (part["kind"] != 0))
+        if not len(cells):
+            continue
+        u0, u1, v0, v1 = part["bounds"][cells].T
+        um, vm = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+        kind = int(part["kind"][cells[0]])
+        for c, box in enumerate(((u0, um, v0, vm), (um, u1, v0, vm), (u0, um, vm, v1), (um, u1, vm, v1))):
+            out[part["patch"][cells] + int(offset), c] = tessellation.area_share(kind, np.stack(box, axis=1)) \
+                * part["surface_area"]
+    return out
+
+
+def patch_sizes(table):
+    """numpy (K,): the size of every front patch: its cell's (clusters) or sqrt(2 area)."""
+    el = table.elements_np
+    k = table.front_count
+    leaf = el["leaf"]
+    counts = np.bincount(el["patch"][leaf], minlength=k)
+    size = np.sqrt(2.0 * table.areas_np[:k])
+    cluster_depth = np.zeros(k)
+    many = leaf & (counts[np.maximum(el["patch"], 0)] > 1)
+    cluster_depth[el["patch"][many]] = el["depth"][many]
+    return np.where(counts > 1, table.h / 2.0 ** cluster_depth, size)
+
+
+def choose(table, sums, counts, threshold, min_size, budget):
+    """The front patches to split: ``sums`` (K, 2, 8) what each child of each patch side
+    received (luminance, any unit: deposits or irradiance sums), ``counts`` (K, 2, 8) the
+    hits behind them; at most as many as keep the patches within ``budget`` (a split adds
+    up to 3 or 7), the largest relative variations first."""
+    areas = child_areas(table)[:, None, :]                          # (K, 1, 8)
+    present = areas > 0
+    total_area = np.maximum(areas.sum(axis=2, keepdims=True), 1e-300)
+    density = np.where(present, sums / np.maximum(areas, 1e-300), 0.0)
+    mean = sums.sum(axis=2, keepdims=True) / total_area
+    scale = np.maximum(np.abs(mean), 1e-300)
+    deviation = np.abs(density - mean)
+    noise = Z * scale / np.sqrt(np.maximum(counts, 1))
+    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (counts > 0)
+    score = np.where(significant, deviation / scale, 0.0).max(axis=(1, 2))
+    eligible = (score > 0) & (patch_sizes(table) > 2.0 * min_size)
+    order = np.argsort(-np.where(eligible, score, -1.0), kind="stable")[:int(eligible.sum())]
+    room = max(0, int(budget) - table.front_count)
+    return np.sort(order[:room // 3])
+
+
+def refined(table, split):
+    """(new table, origin (K',): the patch of ``table`` each new front patch comes from,
+    child (K',): which of its children, -1 where it was not split)."""
+    new, origin = table.refined(split)
+    el = new.elements_np
+    leaf = el["leaf"]
+    which = np.full(new.front_count, -1, np.int64)
+    was_split = np.zeros(table.front_count, bool)
+    was_split[np.asarray(split, np.int64)] = True
+    first = np.full(new.front_count, -1, np.int64)
+    leaves = np.flatnonzero(leaf)
+    first[el["patch"][leaves[::-1]]] = leaves[::-1]             # one element of every new patch
+    split_patch = was_split[origin]
+    for k, (part, before) in enumerate(zip(new.parts, table.parts)):
+        base = int(new.element_offsets[k])
+        mine = np.flatnonzero(split_patch & (new.shape_index_np[:new.front_count] == k))
+        if not len(mine):
+            continue
+        local = first[mine] - base
+        grown = local >= len(before["area"])                      # a child element of a split element
+        parent = part["parent"][local]
+        which[mine[grown]] = local[grown] - part["child"][parent[grown]]
+        octant = element_octants_of(part, local[~grown], new.h, part["depth"][local[~grown]] - 1)
+        which[mine[~grown]] = octant
+    return new, origin, which
+
+
+def element_octants_of(part, elements, h, depth):
+    """The octants of ``elements`` of ``part`` in the grid cell of their cluster at ``depth``."""
+    cell = h / 2.0 ** (depth + 1)
+    octant = np.floor(part["centre"][elements] / cell[:, None]).astype(np.int64) % 2
+    return octant[:, 0] * 4 + octant[:, 1] * 2 + octant[:, 2]
+
+
+#: the last refined table (as ``meshtable.cached_table`` keeps the last table)
+_LAST = []
+
+
+def replay(table, rounds):
+    """``table`` refined by the recorded ``rounds`` (lists of split patches, each in the
+    numbering of the table it was chosen on); the last result is kept for the next call."""
+    if not rounds:
+        return table
+    key = (id(table), repr(rounds))
+    if not _LAST or _LAST[0][0] != key:
+        refined_table = table
+        for split in rounds:
+            refined_table = refined_table.refined(np.asarray(split, np.int64))[0]
+        _LAST[:] = [(key, refined_table, table)]       # (the base held: its id stays unique)
+    return _LAST[0][1]

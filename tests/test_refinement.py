@@ -1,0 +1,131 @@
+"""Adaptive subdivision (``mi_plugins.refinement``, ``qmc_lighttrace``'s ``refine``): split
+patches partition their parents, lookups find the children, the splits follow the
+variation of the light (a shadow's boundary) and nothing splits in uniform light, and
+constant radiance stays exact."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import budget
+import mi_plugins
+from mi_plugins import analytic, refinement
+from mi_plugins.meshtable import MeshTable
+
+T = mi.ScalarTransform4f
+SHAPES = {
+    "rectangle": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(2)},
+    "disk": {"type": "disk", "flip_normals": True, "to_world": T().rotate([1, 0, 0], 90).scale(2)},
+    "sphere": {"type": "sphere", "radius": 0.8},
+    "cylinder": {"type": "cylinder", "p0": [0, 0, 1], "p1": [0, 2, 1], "radius": 0.5},
+    "cube": {"type": "cube", "flip_normals": True},
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES) + ["clusters"])
+def test_children_partition_their_parents_and_hits_find_them(name):
+    """Two rounds of splitting a third of the patches: every split patch becomes its
+    children (4 of a triangle or cell, up to 8 of a cluster), their areas sum to the
+    parent's, unsplit patches stay; a point of every new patch, found again by a ray, maps
+    to that patch, and in the old table to the patch it came from."""
+    if name == "clusters":
+        from test_meshtable import _fine_mesh
+        scene, h = _fine_mesh(power=1.6), 0.5
+    else:
+        scene, h = mi.load_dict({"type": "scene", "s": SHAPES[name]}), 0.6
+    table = MeshTable(scene, "test", h=h)
+    rng = budget.rng(30)
+    for _ in range(2):
+        split = rng.choice(table.front_count, size=max(1, table.front_count // 3), replace=False)
+        new, origin, which = refinement.refined(table, split)
+        children = np.bincount(origin, minlength=table.front_count)
+        assert np.all(np.delete(children, split) == 1) and np.all((children[split] >= 2) & (children[split] <= 8))
+        assert np.allclose(np.bincount(origin, new.areas_np[:new.front_count], minlength=table.front_count),
+                           table.areas_np[:table.front_count], rtol=1e-6)
+        assert np.all((which >= 0) == np.isin(origin, split))
+        n = new.front_count
+        si = new.surface_interaction(dr.arange(mi.UInt32, n), mi.Point2f(rng.random(n), rng.random(n)))
+        hit = scene.ray_intersect(mi.Ray3f(si.p + si.n * 0.01, -si.n))
+        assert np.array_equal(np.array(new.patch(hit)), np.arange(n))
+        assert np.array_equal(np.array(table.patch(hit)), origin)
+        found = np.array(refinement.child_index(table, table.locate(hit)))
+        assert np.array_equal(found[which >= 0], which[which >= 0])
+        table = new
+
+
+def _shadow_scene(blocker=True):
+    """A 4 x 4 floor under a small lamp, with (or without) a black square blocker between."""
+    d = {"type": "scene",
+         "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(2), "bsdf": {"type": "diffuse"}},
+         "lamp": {"type": "rectangle", "to_world": T().translate([0.5, 1.8, 0]).rotate([1, 0, 0], 90).scale(0.05),
+                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 300.0}}},
+         "sensor": {"type": "perspective", "to_world": T().look_at([0, 3.5, 3], [0, 0, 0], [0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": 8, "height": 8}}}
+    if blocker:
+        d["blocker"] = {"type": "rectangle", "to_world": T().translate([0.3, 0.6, 0]).rotate([1, 0, 0], 90).scale(0.4),
+                        "bsdf": {"type": "diffuse", "reflectance": 0.0}}
+    return mi.load_dict(d)
+
+
+def _shadow_distance(points):
+    """Distance (in the floor) of floor points from the boundary of the blocker's shadow:
+    the blocker's square (x 0.3 +- 0.4, z +- 0.4, at y 0.6) seen from the lamp's centre."""
+    lamp = np.array([0.5, 1.8, 0.0])
+    corners = np.array([[0.3 + sx * 0.4, 0.6, sz * 0.4] for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    shadow = lamp + (corners - lamp) * (lamp[1] / (lamp[1] - 0.6))      # on y = 0
+    x0, x1, z0, z1 = shadow[:, 0].min(), shadow[:, 0].max(), shadow[:, 2].min(), shadow[:, 2].max()
+    x, z = points[:, 0], points[:, 2]
+    inside = (x > x0) & (x < x1) & (z > z0) & (z < z1)
+    dx = np.minimum(np.abs(x - x0), np.abs(x - x1))
+    dz = np.minimum(np.abs(z - z0), np.abs(z - z1))
+    return np.where(inside, np.minimum(dx, dz),
+                    np.hypot(np.maximum(np.maximum(x0 - x, x - x1), 0), np.maximum(np.maximum(z0 - z, z - z1), 0)))
+
+
+def _split_patches(scene, seed=31):
+    integ = mi.load_dict({"type": "qmc_lighttrace", "refine": True, "samples": 400000})
+    solution = integ.solve(scene, budget.seed(seed))
+    base = integ.patch_table(scene)
+    return base, solution.meta["refinements"]
+
+
+def test_splits_follow_the_shadow_boundary():
+    """Every patch split in the first round lies within one patch size of the shadow's
+    boundary (a patch whose light varies inside it), and there are several."""
+    scene = _shadow_scene()
+    base, rounds = _split_patches(scene)
+    assert rounds and len(rounds[0]) >= 3, rounds
+    floor = base.shape_index_np[:base.front_count] == [s.id() for s in base.shapes].index("floor")
+    split = np.array(rounds[0])
+    assert np.all(floor[split])
+    centre = np.array([base.elements_np["centre"][base.elements_np["patch"] == p].mean(axis=0) for p in split])
+    size = np.sqrt(2 * base.areas_np[split])
+    assert np.all(_shadow_distance(centre) < size), (_shadow_distance(centre), size)
+
+
+def test_uniform_light_splits_nothing():
+    """Test of the test: the same floor and lamp without the blocker: no patch's light
+    varies beyond its noise and the threshold (the lamp's falloff over a patch is within
+    10 %), so nothing splits."""
+    _, rounds = _split_patches(_shadow_scene(blocker=False))
+    assert rounds == [], rounds
+
+
+@pytest.mark.parametrize("display", ["gather", "smooth", "patches"])
+def test_refined_patches_keep_constant_radiance_exact(display):
+    """Keller's cube with refinement (a constant field: nothing varies, a few splits of
+    noise at most): the displays stay exact."""
+    case = analytic.keller_cube(resolution=8)
+    cfg = {"type": "qmc_lighttrace", "refine": True, "refine_threshold": 0.02, "samples": 40000, "display": display}
+    out = analytic.check(case, cfg, spp=8 if display != "gather" else 16, runs=16, seed=budget.seed(32))
+    assert out.passed, out
+
+
+def test_a_refined_solution_saves_and_loads(tmp_path):
+    scene = _shadow_scene()
+    solution = mi_plugins.solve(scene, {"type": "qmc_lighttrace", "refine": True, "samples": 400000},
+                                seed=budget.seed(31))
+    assert solution.meta["refinements"]
+    again = mi_plugins.solution.Solution.load(solution.save(str(tmp_path / "s.npz")), _shadow_scene())
+    assert again.patches == solution.patches and np.array_equal(again.tables, solution.tables)
+    assert len(solution.to_ply(str(tmp_path / "ply"))) == 3
