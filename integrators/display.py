@@ -120,16 +120,20 @@ class View:
         return value
 
 
-def gather_elsewhere(paths, seed, gather_samples, si, bsdf, used, lanes):
+def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes):
     """The gather of ``qmc_gather`` at the visible points of ``lanes`` only (the points the
-    display does not read: glossy, mixed, bump-mapped), run on those lanes alone."""
+    display does not read: glossy, mixed, bump-mapped), run on those lanes alone: their
+    rays (``chain.ray``) found again there, so that no surface interaction of every lane
+    is ever stored."""
+    dr.eval(chain.ray, used, lanes)
     index = dr.compress(lanes)
     total = dr.zeros(mi.Color3f, dr.width(lanes))
     if dr.width(index) == 0:
         return total
-    at = dr.gather(mi.SurfaceInteraction3f, si, index)
-    light, gathered = paths.gather(None, seed, gather_samples, at, dr.gather(mi.BSDFPtr, bsdf, index),
-                                   dr.gather(mi.UInt32, used, index), dr.full(mi.Bool, True, dr.width(index)))
+    ray = dr.gather(mi.Ray3f, chain.ray, index)
+    at = paths.scene.ray_intersect(ray)
+    light, gathered = paths.gather(None, seed, gather_samples, at, at.bsdf(ray), dr.gather(mi.UInt32, used, index),
+                                   dr.full(mi.Bool, True, dr.width(index)))
     dr.scatter(total, light + gathered, index)
     return total
 
@@ -154,12 +158,12 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
     for k in (range(passes) if steps is None else steps.second_stage(passes)):
         cam = frame.camera_pass()
         seed = seeds.stream(frame.seed, "display", k)
-        chain, si, bsdf, used, active = paths.visible_points(cam, seed)
+        chain, si, bsdf, used, active = paths.visible_points(cam, seed, evaluate=False)
         diffuse = view.surfaces.diffuse(si, active)
         rng = seeds.pcg(cam.count, seed, "camera_path", 2)
         value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng)
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
-            value += gather_elsewhere(paths, seed, gather_samples, si, bsdf, used, active & ~diffuse)
+            value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())

@@ -75,9 +75,10 @@ class CameraPaths:
         self.depth = UNBOUNDED if max_depth < 0 else int(max_depth)
         self.max_depth, self.mirror_depth, self.hide_emitters = int(max_depth), int(mirror_depth), hide_emitters
 
-    def visible_points(self, cam, seed):
+    def visible_points(self, cam, seed, evaluate=True):
         """The eye rays of camera pass ``cam``: (chain, si at the visible point, its BSDF,
-        segments used to reach it (UInt32), active)."""
+        segments used to reach it (UInt32), active); evaluated in one kernel unless
+        ``evaluate`` is false (a caller that fuses them into its own kernel)."""
         scene = self.scene
         rng = seeds.pcg(cam.count, seed, "camera_path")
         chain = specular_chain(scene, cam.ray, rng, self.max_depth, self.mirror_depth, self.hide_emitters)
@@ -85,7 +86,8 @@ class CameraPaths:
         used = chain.depth + 1
         active = chain.reached & si.is_valid() & (used < self.depth)
         bsdf = si.bsdf(chain.ray)
-        dr.eval(chain.emission, chain.throughput, chain.surface, si, bsdf, used, active)   # the chain's one kernel
+        if evaluate:
+            dr.eval(chain.emission, chain.throughput, chain.surface, si, bsdf, used, active)   # the chain's one kernel
         return chain, si, bsdf, used, active
 
     def estimate(self, cam, seed, gather_samples):
