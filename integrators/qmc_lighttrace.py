@@ -226,10 +226,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
                              "sequence_depth=%d needs %d dimensions; sequence '%s' has %d"
                              % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
-        self.refine = p.bool("refine", False)
-        self.refine_threshold = p.float("refine_threshold", 0.1, lo=0, lo_open=True)
-        self.min_patch_size = p.float("min_patch_size", None, lo=0, lo_open=True, note="optional: patch_size / 4")
-        self.max_patches = p.int("max_patches", None, lo=1, note="optional: 4 x the patches before refining")
+        self.refine, self.refine_threshold, self.min_patch_size, self.max_patches = refinement.read_parameters(p)
         if self.refine and self.epsilon is not None:
             raise p.conflict(("refine", "epsilon"), "refine=true with a fixed samples count (no epsilon: the "
                                                     "refinement follows the particle phase's fixed ranges)")

@@ -46,8 +46,9 @@ def trace_range(integ, scene, table, start, count, seed, children=False):
     """Deposits of paths start .. start + count - 1 of ``integ``'s sequence, in chunks of
     at most CHUNK paths summed in order: (irradiance flux per layer and patch side
     (layers, K, 2, 3), emitted power (3,)); zeros for a scene without emitters. With
-    ``children``: per child of every patch side (layers, K, 2, 8, 3), and the hits per
-    child (K, 2, 8) as a third value (``mi_plugins.refinement``)."""
+    ``children``: per child of every patch side (layers, K, 2, 8, 3), and the sums of the
+    squares of the deposits' luminance per child (K, 2, 8) as a third value
+    (``mi_plugins.refinement``)."""
     layers = integ.layers
     shape = (layers.count, table.count, 2) + ((CHILDREN,) if children else ()) + (3,)
     total, emitted, done, hits = np.zeros(shape), np.zeros(3), 0, np.zeros((table.count, 2, CHILDREN))
@@ -65,7 +66,8 @@ def trace_range(integ, scene, table, start, count, seed, children=False):
 def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=None, children=False):
     """Deposit the irradiance flux of paths start .. start + count - 1 (one kernel):
     (per layer and patch side, numpy (layers, K, 2, 3) (with ``children``: per child too,
-    (layers, K, 2, 8, 3)); emitted power (3,); with ``children``, hits per child (K, 2, 8))."""
+    (layers, K, 2, 8, 3)); emitted power (3,); with ``children``, the sums of the squares of
+    the deposits' luminance per child (K, 2, 8))."""
     layers, depth = integ.layers, integ.sequence_depth
     index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, start)   # opaque: no recompiling
     dims = dimensions(depth)
@@ -82,7 +84,7 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
         scale = FixedPoint.scale_for(DEPOSIT_GUESS * count * max(np.abs(emitted).max(initial=0.0), 1e-30))
     bins = CHILDREN if children else 1
     store = FixedPoint(layers.count * table.count * 6 * bins, scale)  # [(((layer K + patch) 2 + side) bins + child) 3 + c]
-    hits_per_child = dr.zeros(mi.UInt32, table.count * 2 * bins)
+    hits_per_child = dr.zeros(mi.Float, table.count * 2 * bins)
     # the tail's stream: the render seed's, or a fixed one with the plain sequence
     tail = mi.PCG32(count, initstate=dr.opaque(mi.UInt64, seeds.stream(seed if integ.scramble else 0, "particles", 1)),
                     initseq=mi.UInt64(index))
@@ -103,8 +105,9 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
         slot = (layers.layer(hits) * (table.count * 2 * bins) + side) * 3
         for c in range(3):    # the three channels
             store.add(value[c], slot + c, lit)
-        if children:
-            dr.scatter_reduce(dr.ReduceOp.Add, hits_per_child, mi.UInt32(1), side, lit)
+        if children:        # (the squares of the deposits: the children's noise, mi_plugins.refinement)
+            brought = mi.luminance(value)
+            dr.scatter_add(hits_per_child, brought * brought, side, lit)
         spent += dr.select(lit, dr.abs(value.x) + dr.abs(value.y) + dr.abs(value.z), 0.0)
         # the next bounce: the sequence's numbers for the first `depth` bounces, then the tail's
         active &= hits < max_hits

@@ -22,6 +22,8 @@ MIN_GROUP_PATHS = 256
 #: refined patches), and the default patch budget (times the initial patches)
 REFINE_RANGES = 4
 REFINE_BUDGET = 4
+#: Mitsuba's luminance weights of linear RGB (mi.luminance)
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
 
 def particle_phase(integ, scene, table, seed, report=False, rendering=False, given=None, preview=None):
@@ -95,7 +97,7 @@ def _refining(integ, scene, table, seed, preview):
     bounds = [n * g // groups for g in range(groups + 1)]
     layers, k = integ.layers.count, table.front_count
     total = np.zeros((layers, k, 2, 3))
-    children, hits = np.zeros((layers, k, 2, CHILDREN, 3)), np.zeros((k, 2, CHILDREN))
+    children, squares = np.zeros((layers, k, 2, CHILDREN, 3)), np.zeros((k, 2, CHILDREN))
     since, made = np.zeros(k), np.zeros(k)     # paths before each patch's estimate and children began
     budget = integ.max_patches or REFINE_BUDGET * k
     min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
@@ -103,9 +105,9 @@ def _refining(integ, scene, table, seed, preview):
         deposit, _, found = trace_range(integ, scene, table, bounds[g], bounds[g + 1] - bounds[g], seed, children=True)
         total += deposit.sum(axis=3)
         children += deposit
-        hits += found
+        squares += found
         if g < min(REFINE_RANGES, groups - 1):
-            split = refinement.choose(table, children.sum(axis=0).mean(axis=-1), hits, integ.refine_threshold,
+            split = refinement.choose(table, children.sum(axis=0) @ LUMINANCE, squares, integ.refine_threshold,
                                       min_size, budget)
             if len(split):
                 table, origin, which = refinement.refined(table, split)
@@ -117,7 +119,7 @@ def _refining(integ, scene, table, seed, preview):
                 since = np.where(child, made[origin], since[origin])
                 made = np.where(child, bounds[g + 1], made[origin])
                 children = np.where(child[None, :, None, None, None], 0.0, children[:, origin])
-                hits = np.where(child[:, None, None], 0.0, hits[origin])
+                squares = np.where(child[:, None, None], 0.0, squares[origin])
         if preview is not None and g + 1 < groups:
             done = bounds[g + 1] - since
             preview(integ.layers.tables_from(total / np.maximum(done, 1)[None, :, None, None]

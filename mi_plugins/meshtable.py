@@ -118,7 +118,7 @@ class MeshTable:
         backs = np.flatnonzero(two_sided[shape_index])
         back_of = np.full(self.front_count, self.NONE, dtype=np.uint32)
         back_of[backs] = self.front_count + np.arange(len(backs))
-        self._back_of = mi.UInt32(back_of)
+        self._back_of, self.back_of_np = mi.UInt32(back_of), back_of
         #: per patch (fronts, then backs): the front patch it belongs to (backs: their side 1)
         self.front_of_np = np.concatenate([np.arange(self.front_count), backs]).astype(np.int64)
         self.count = self.front_count + len(backs)
@@ -211,7 +211,10 @@ class MeshTable:
     def side_patch(self, si, toward):
         """The patch of hits ``si`` on the side facing ``toward`` (world directions), and
         whether that side exists (one-sided surfaces have none at the back)."""
-        front = self.patch(si)
+        return self.side_of(self.patch(si), si, toward)
+
+    def side_of(self, front, si, toward):
+        """:meth:`side_patch` of hits ``si`` whose front patch ``front`` is known."""
         facing = dr.dot(si.n, toward) > 0
         back = dr.gather(mi.UInt32, self._back_of, front, ~facing)
         return dr.select(facing, front, back), facing | (back != self.NONE)

@@ -5,8 +5,9 @@ level-2 sub-triangles of a triangle, the 4 uv quadrants of a cell, the up to 8 o
 a cluster's grid cell (:func:`child_index`: the same children ``MeshTable.refined``
 makes). After a stage of the solve, :func:`choose` splits the patches where some child's
 irradiance differs from the patch's by more than ``threshold`` of it and by more than
-:data:`Z` standard errors (a child's relative error ~ 1 / sqrt(its hits)): the variation
-of the incoming radiance inside the patch (the stochastic-iteration paper's remedy:
+:data:`Z` standard errors: the variation
+of the incoming radiance inside the patch, with each child's standard error estimated
+from its deposits (the stochastic-iteration paper's remedy:
 "much more robust than methods which examine the radiosity gradient"; it finds shadow
 boundaries and highlights inside a patch), the most varying first, down to ``min_size``
 and within ``budget`` patches. A uniform field splits nothing: its children agree to
@@ -27,6 +28,14 @@ from mi_plugins import tessellation
 CHILDREN = 8
 #: a child differs significantly beyond this many of its standard errors
 Z = 4.0
+
+
+def read_parameters(p):
+    """(refine, refine_threshold, min_patch_size, max_patches) of an integrator, read with
+    its Params ``p`` (the integrators' docstrings give their meaning)."""
+    return (p.bool("refine", False), p.float("refine_threshold", 0.1, lo=0, lo_open=True),
+            p.float("min_patch_size", None, lo=0, lo_open=True, note="optional: patch_size / 4"),
+            p.int("max_patches", None, lo=1, note="optional: 4 x the patches before refining"))
 
 
 def element_octants(table):
@@ -95,11 +104,13 @@ def patch_sizes(table):
     return np.where(counts > 1, table.h / 2.0 ** cluster_depth, size)
 
 
-def choose(table, sums, counts, threshold, min_size, budget):
+def choose(table, sums, squares, threshold, min_size, budget):
     """The front patches to split: ``sums`` (K, 2, 8) what each child of each patch side
-    received (luminance, any unit: deposits or irradiance sums), ``counts`` (K, 2, 8) the
-    hits behind them; at most as many as keep the patches within ``budget`` (a split adds
-    up to 3 or 7), the largest relative variations first."""
+    received (luminance, any unit: deposits or irradiance sums), ``squares`` (K, 2, 8) the
+    sums of the squares of the deposits behind them (a child's sum has about their square
+    root as its standard error, whatever the deposits' spread); at most as many as keep the
+    patches within ``budget`` (a split adds up to 3 or 7), the largest relative variations
+    first."""
     areas = child_areas(table)[:, None, :]                          # (K, 1, 8)
     present = areas > 0
     total_area = np.maximum(areas.sum(axis=2, keepdims=True), 1e-300)
@@ -107,8 +118,8 @@ def choose(table, sums, counts, threshold, min_size, budget):
     mean = sums.sum(axis=2, keepdims=True) / total_area
     scale = np.maximum(np.abs(mean), 1e-300)
     deviation = np.abs(density - mean)
-    noise = Z * scale / np.sqrt(np.maximum(counts, 1))
-    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (counts > 0)
+    noise = Z * np.sqrt(np.maximum(squares, 0.0)) / np.maximum(areas, 1e-300)
+    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (squares > 0)
     score = np.where(significant, deviation / scale, 0.0).max(axis=(1, 2))
     eligible = (score > 0) & (patch_sizes(table) > 2.0 * min_size)
     order = np.argsort(-np.where(eligible, score, -1.0), kind="stable")[:int(eligible.sum())]

@@ -141,6 +141,10 @@ TABLE = {
         "point_sources": BOOL(),
         "display": CHOICE(("gather", "smooth", "patches", "baked")),
         "preview_every": INT(0, good=[0, 4]),
+        "refine": Param("bool", ["false", "true", "abc", 2, 1, 0, 1.0, NAN], [True, False], {"display": "smooth"}),
+        "refine_threshold": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
+        "min_patch_size": FLOAT(0, lo_open=True, good=[0.01, 1.0]),
+        "max_patches": INT(1, good=[1, 5000]),
     },
     "phong": {
         "diffuse_reflectance": TEXTURE(GOOD_TEXTURES + [0.8], extra_bad=[0.9]),       # 0.9 + ks 0.2 > 1
@@ -471,6 +475,7 @@ def test_rules_between_parameters_name_both():
         ("qmc_lighttrace", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
         ("qmc_lighttrace", {"refine": True, "epsilon": 0.01}, ("refine", "epsilon")),
         ("ray_bundle", {"display": "baked", "max_depth": 4}, ("display", "max_depth")),
+        ("ray_bundle", {"refine": True}, ("refine", "display")),
         ("phong", {"diffuse_reflectance": 0.7, "specular_reflectance": 0.5},
          ("diffuse_reflectance", "specular_reflectance")),
         ("separable", {"target_radiance": 0.4, "emission": Ref("lamp")}, ("target_radiance", "emission")),

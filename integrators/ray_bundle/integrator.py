@@ -8,7 +8,8 @@ from mi_plugins import seeds
 from mi_plugins.integrators import display
 from mi_plugins.integrators.core import Frame
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
-from mi_plugins.integrators.ray_bundle import checks, split
+from mi_plugins import refinement
+from mi_plugins.integrators.ray_bundle import checks, refine, split
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
 from mi_plugins.integrators.ray_bundle import frozen
@@ -26,7 +27,7 @@ DEFAULT_CHAINS = 64
 #: integrator, which its scene holds, would be a reference cycle through C++ that Python's
 #: garbage collector cannot free (every discarded scene would stay alive, and Dr.Jit
 #: traces every live plugin instance: later renders slow down)
-FROZEN_CACHE = 1
+FROZEN_CACHE = 2
 STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
@@ -201,6 +202,28 @@ class RayBundleIntegrator(SolutionIntegrator):
        - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set and a
          display from the solution, every N averaged iterations of a solve the image of
          the solution so far (one sample per pixel)
+     * - refine
+       - bool
+       - false
+       - adaptive subdivision, with a display from the solution: a pilot half of the
+         averaged iterations measures what the lines bring to the children of every patch
+         (level-2 sub-triangles, cell quadrants, cluster octants); the patches inside which
+         it varies (a child differing from the patch by more than ``refine_threshold`` and
+         4 standard errors: shadow boundaries, spot pools) split, and the solve goes on on
+         the refined patches from the pilot's state (a child's radiance its parent's;
+         ``mi_plugins.refinement``), 2 iterations of burn-in, then the averaged ones
+     * - refine_threshold
+       - float
+       - 0.1
+       - > 0: the relative variation that splits a patch
+     * - min_patch_size
+       - float
+       - patch_size / 4
+       - > 0: patches are not split below this size
+     * - max_patches
+       - int
+       - 4 x the patches before refining
+       - >= 1: splits stop at this many patches
      * - adaptive
        - bool
        - true
@@ -278,7 +301,12 @@ class RayBundleIntegrator(SolutionIntegrator):
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
         self.point_sources = p.bool("point_sources", True)
+        self.refine, self.refine_threshold, self.min_patch_size, self.max_patches = refinement.read_parameters(p)
+        self.refinements = []
         self.read_display(p)
+        if self.refine and self.display == "gather":
+            raise p.conflict(("refine", "display"), "refine=true with display 'smooth', 'patches' or 'baked' (the "
+                                                    "refined patches make the view-independent solution)")
         if self.display == "baked" and self.max_depth >= 0:
             raise p.conflict(("display", "max_depth"), "display='baked' with max_depth=-1 (it shows the solution's "
                                                        "full radiance); display='smooth' reads any max_depth")
@@ -378,7 +406,8 @@ class RayBundleIntegrator(SolutionIntegrator):
     def solution_settings(self):
         return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
                 self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.cluster,
-                self.max_depth, self.adaptive, self.point_sources)
+                self.max_depth, self.adaptive, self.point_sources, self.refine, self.refine_threshold,
+                self.min_patch_size, self.max_patches)
 
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""
@@ -389,9 +418,10 @@ class RayBundleIntegrator(SolutionIntegrator):
         total, burn_in = self.counts(1)
         steps = self.steps(total, burn_in, total + passes)
         solution = self.solution_for(scene, frame.seed, table, frame.sensor, steps=steps)
-        if steps.state.interrupted:
+        if self.progress.interrupted:
             return
-        self.render_display(frame, solution, table, steps)
+        self.render_display(frame, solution, refinement.replay(table, solution.meta.get("refinements")),
+                            None if self.refine else steps)
 
     def compute_solution(self, scene, table, seed, preview=None, sensor=None, steps=None):
         """The bundles' irradiance per patch side, averaged over chains and the averaged
@@ -400,20 +430,38 @@ class RayBundleIntegrator(SolutionIntegrator):
 
     def _compute_solution(self, scene, table, seed, preview, sensor, steps):
         frame = Frame(scene, sensor if sensor is not None else scene.sensors()[0], 1, seed, self.plugin)
-        run = Run(self, frame, available_memory(), DEFAULT_CHAINS, table, solve_only=True)
+        total, burn_in = self.counts(1)
+        self.refinements = []
+        pilot = (burn_in + max(1, int((total - burn_in) * refine.PILOT_SHARE)), burn_in) if self.refine else None
+        run = Run(self, frame, available_memory(), DEFAULT_CHAINS, table, solve_only=True, children=self.refine,
+                  counts=pilot)
         directions = DirectionStream(self.direction_sequence, run.layout.chains,
                                      seeds.numpy_rng(seed, "directions"), self.stratify_chains,
-                                     self.bidirectional, run.total + 1)
-        steps = steps if steps is not None else self.steps(run.total, run.burn_in)
+                                     self.bidirectional, run.total + total + 2)
+        steps = steps if steps is not None and not self.refine else self.steps(run.total, run.burn_in)
         if preview is not None:
             run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.window)
         run.run(steps, directions)
+        split = refine.choose(self, run) if self.refine and not self.progress.interrupted else ()
+        if len(split):                   # the solve goes on on the refined patches
+            refined, origin, _ = refinement.refined(table, split)
+            self.refinements = [split.tolist()]
+            after = Run(self, frame, available_memory(), DEFAULT_CHAINS, refined, solve_only=True,
+                        chains=run.layout.chains, counts=(refine.BURN_IN + total - burn_in, refine.BURN_IN))
+            origin = refine.all_origins(table, refined, origin)
+            refine.map_direct(run.transport.direct, after.transport.direct, origin)
+            state = refine.map_state(run.state, run.layout, after.layout, origin)
+            if preview is not None:
+                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.window)
+            after.run(self.steps(after.total, after.burn_in), directions, state=state)
+            run, table = after, refined
         return self._solution(run, scene, table, seed)
 
     def _solution(self, run, scene, table, seed):
         tables, error = run.irradiance.numpy()
         meta = solution_meta(self, scene, table, seed, self.patch_size_for(scene), chains=run.layout.chains,
-                             iterations=int(run.total + run.extended), averaged=int(self.progress.averaged))
+                             iterations=int(run.total + run.extended), averaged=int(self.progress.averaged),
+                             refinements=list(self.refinements))
         return Solution(tables, table.areas_np[:table.front_count], meta, error=error,
                         direct_in_tables=not self.first_shot)
 

@@ -53,7 +53,8 @@ class Run:
     ``table``: the scene's patches; ``solve_only``: the iterations of a view-independent
     solution (``irradiance``), no camera pass."""
 
-    def __init__(self, integ, frame, available, default_chains, table, solve_only=False):
+    def __init__(self, integ, frame, available, default_chains, table, solve_only=False, children=False,
+                 chains=None, counts=None):
         self.integ, self.frame, split = integ, frame, frame.task
         scene, spp = frame.scene, 1 if solve_only else frame.spp
         self.solve_only = solve_only
@@ -64,7 +65,7 @@ class Run:
         film = frame.film
         border = film.rfilter().border_size() if film.sample_border() else 0
         per_chain = 0 if solve_only else (frame.width + 2 * border) * (frame.height + 2 * border)
-        chains = (split.chains if split is not None and split.chains else
+        chains = chains or (split.chains if split is not None and split.chains else
                   integ.chains or limits.default_chains(default_chains, sides * table.count, integ.resolution,
                                                         available, orders))
         self.layout = layout = ChainLayout(table, chains, sides, orders)
@@ -73,7 +74,7 @@ class Run:
         if not self.gather_only:
             limits.check(layout, integ.resolution, per_chain, self.group, available)
         self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
-                                   integ.point_sources)
+                                   integ.point_sources, children)
         self.estimator = None if solve_only else ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters,
                                                                             integ.max_depth)
         if self.estimator is not None:
@@ -83,7 +84,7 @@ class Run:
         self.irradiance = (IrradianceAverage(layout, self.transport.weight, seeds.pcg(layout.slots, frame.seed,
                                                                                      "patches", 1))
                            if solve_only else None)
-        self.total, self.burn_in = integ.counts(spp)
+        self.total, self.burn_in = counts if counts is not None else integ.counts(spp)
         self.window = self.total - self.burn_in
         # a finite depth is exact once every order is there: no growth to watch
         self.trace = convergence.PowerTrace(layout, self.window) if integ.max_depth < 0 else None
@@ -121,7 +122,8 @@ class Run:
                 t.direct.any if t.direct else None, avg is not None and (avg.covers_all, avg.estimate),
                 self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
                 integ.estimate, integ.point_sources, self.uses_sampler, int(film.flags()), frame.width,
-                frame.height, tuple(sorted(frame._blocks)), self.image_iterations, self.solve_only)
+                frame.height, tuple(sorted(frame._blocks)), self.image_iterations, self.solve_only,
+                t.children is not None)
 
     def __hash__(self):
         return hash(self.key)
@@ -169,18 +171,21 @@ class Run:
                        dr.opaque(mi.UInt32, g * self.group), dr.opaque(mi.UInt64, seed), block)
 
     # ------------------------------------------------------------------ iterations
-    def run(self, steps, directions):
-        """Burn-in and averaged iterations; while the chains still converge (``adaptive``)
-        the burn-in goes on, up to the cap (``self.extended``: the iterations added)."""
+    def run(self, steps, directions, state=None):
+        """Burn-in and averaged iterations (from ``state``, e.g. a coarser run's mapped onto
+        refined patches, or the source term); while the chains still converge (``adaptive``)
+        the burn-in goes on, up to the cap (``self.extended``: the iterations added).
+        ``self.state``: the last state."""
         integ, frame, window = self.integ, self.frame, self.window
         passes = window * (int(self.image_iterations) + int(self.average is not None))
         if passes:
             self.camera_passes(passes)
-        state = self.transport.initial(chain_directions(directions.next()))
+        if state is None:
+            state = self.transport.initial(chain_directions(directions.next()))
         dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
         cap, used, burn_in, self.extended = convergence.EXTENSION_CAP * self.total, 0, self.burn_in, 0
         while True:
-            state = self._iterations(steps, directions, state, burn_in)
+            state = self.state = self._iterations(steps, directions, state, burn_in)
             used += burn_in + window
             if state is None or self.trace is None:
                 return

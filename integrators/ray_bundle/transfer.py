@@ -22,6 +22,7 @@ from mi_plugins import seeds
 from mi_plugins.integrators.core import SPLAT_MODE
 from mi_plugins.integrators.ray_bundle.direct import SharedDirect, direct_light_mis
 from mi_plugins.meshtable import scene_bounds
+from mi_plugins.refinement import CHILDREN, child_index
 
 #: a line continues past a hit from a point this far (relative to 1 + the largest
 #: coordinate) beyond the surface; Mitsuba's spawn_ray offsets ~90x more, which skips
@@ -109,12 +110,43 @@ def bsdf_over_cosine(si, bsdf, towards_source, active=True):
     return dr.select(ok, value / dr.select(ok, cos_geo, 1.0), 0.0)
 
 
+@dataclass
+class ChildSums:
+    sums: mi.Float        # luminance arriving per (front patch, side, child)
+    squares: mi.Float     # the sum of the squares of what each line brought there
+
+
+class ChildStats:
+    """What the lines bring to each child of each front patch side (``mi_plugins.refinement``)."""
+
+    def __init__(self, table):
+        self.table = table
+        size = table.front_count * 2 * CHILDREN
+        self.state = ChildSums(dr.zeros(mi.Float, size), dr.zeros(mi.Float, size))
+        dr.make_opaque(self.state.sums, self.state.squares)
+
+    def add(self, located, si, toward, value, active):
+        side = dr.select(dr.dot(si.n, toward) > 0, 0, 1)
+        index = (located[0] * 2 + side) * CHILDREN + child_index(self.table, located, active)
+        brought = mi.luminance(value)
+        dr.scatter_add(self.state.sums, brought, index, active, mode=SPLAT_MODE)
+        dr.scatter_add(self.state.squares, brought * brought, index, active, mode=SPLAT_MODE)
+
+    def numpy(self):
+        """(sums, squares), numpy (K, 2, 8) each."""
+        shape = (self.table.front_count, 2, CHILDREN)
+        return (np.array(self.state.sums, dtype=np.float64).reshape(shape),
+                np.array(self.state.squares, dtype=np.float64).reshape(shape))
+
+
 class Transport:
     """The transfer and reflection steps of all chains of one render. ``finite``: the
     orders are bounce orders (a finite depth), else one unbounded value per lane."""
 
-    def __init__(self, scene, layout, resolution, first_shot, seed, finite=False, point_sources=True):
+    def __init__(self, scene, layout, resolution, first_shot, seed, finite=False, point_sources=True, children=False):
         self.scene, self.layout, self.resolution, self.first_shot = scene, layout, int(resolution), first_shot
+        #: with ``children``: what arrives in each child of each front patch side (refinement)
+        self.children = ChildStats(layout.table) if children else None
         self.finite, self.point_sources = bool(finite), bool(point_sources)
         self.center, self.radius = bounding_sphere(scene, layout.table)
         self.lines = self.resolution ** 2 * layout.chains
@@ -127,8 +159,9 @@ class Transport:
         self.direct = SharedDirect(scene, layout.table, seed) if first_shot else None
 
     def mutable(self):
-        """The state the iterations change (random streams, shared direct light)."""
-        return self.streams, self.direct.state if self.direct is not None else None
+        """The state the iterations change (random streams, shared direct light, children)."""
+        return (self.streams, self.direct.state if self.direct is not None else None,
+                self.children.state if self.children is not None else None)
 
     def source(self, si, tri):
         """The radiance a patch point of patch ``tri`` sends toward ``si.wi`` without the
@@ -204,11 +237,15 @@ class Transport:
             hit = found & ~((shape == last_shape) & (pi.prim_index == last_prim) & (pi.t < REHIT * scale))
             # the side facing the line's origin receives, the side facing ahead sends
             # (Mitsuba's orientation, flip_normals included; one-sided surfaces have one)
-            receiver, receives = table.side_patch(si, -d)
-            sender, sends = table.side_patch(si, d)
+            located = table.locate(si, found)
+            receiver, receives = table.side_of(located[0], si, -d)
+            sender, sends = table.side_of(located[0], si, d)
             slot, exchange = layout.slot_of(receiver, chain), hit & receives & prev_fwd
-            for inc, value in zip(incoming, self.carried(state, prev, prev_src, exchange)):
+            arriving = self.carried(state, prev, prev_src, exchange)
+            for inc, value in zip(incoming, arriving):
                 dr.scatter_add(inc, value * area, slot, exchange, mode=SPLAT_MODE)
+            if self.children is not None:      # where in the receiving patch it arrives
+                self.children.add(located, si, -d, sum(arriving[1:], arriving[0]) * area, exchange)
             if back:                   # the receiving side sends back along -d (si.wi is -d)
                 own = self.point_source(si, exchange, rng) if self.point_sources else None
                 for inc, value in zip(incoming, self.carried(state, slot + back, own, exchange)):
