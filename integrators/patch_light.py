@@ -7,7 +7,8 @@ BSDF and emission that turn irradiance into the radiance it sends.
   ``samples`` uniformly random points of the patch: one light sample and one
   cosine-distributed direction per point, combined by multiple importance sampling
   (the reflection of a white Lambertian surface there, times pi). Unbiased; its
-  standard error per patch side comes with it.
+  standard error per patch side comes with it. With ``children`` it also says what
+  each child of every patch side receives (``mi_plugins.refinement``).
 - :func:`side_values`: f toward each side's normal (rho / pi on purely diffuse patches,
   0 elsewhere) and the emitted radiance along it, at each patch's centroid: the flat
   per-patch radiance Le + f (E_d + E) of the 'patches' display and of exported meshes.
@@ -17,6 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
+from mi_plugins.refinement import CHILDREN, child_index
 from mi_plugins.sampling import direct_light
 from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward
 
@@ -25,16 +27,15 @@ DIRECT_SAMPLES = 8
 #: lanes of one kernel at the most (patch sides x samples are done in chunks)
 CHUNK = 1 << 22
 
-_WHITE = {}
 
-
-def white():
-    """A white Lambertian BSDF reflecting on both sides (one per variant, made once)."""
-    variant = mi.variant()
-    if variant not in _WHITE:
-        _WHITE[variant] = mi.load_dict({"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
+def white(table):
+    """A white Lambertian BSDF reflecting on both sides, made once per patch table and
+    held by it: a BSDF alive beyond its scene's lifetime would be among the plugins every
+    later BSDF call traces, and a later scene's frozen steps could not be recorded."""
+    if getattr(table, "white_bsdf", None) is None:
+        table.white_bsdf = mi.load_dict({"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
             "type": "rgb", "value": 1.0}}})
-    return _WHITE[variant]
+    return table.white_bsdf
 
 
 def _side_points(table, index, side, rng):
@@ -49,15 +50,19 @@ def _side_points(table, index, side, rng):
     return si
 
 
-def direct_irradiance(scene, table, seed, samples=DIRECT_SAMPLES):
+def direct_irradiance(scene, table, seed, samples=DIRECT_SAMPLES, children=False):
     """(mean, standard error), numpy (K, 2, 3) each: the direct irradiance of every front
-    patch side of ``table`` (module docstring)."""
+    patch side of ``table`` (module docstring). With ``children``, also the points binned
+    by the child holding them: the sums of their irradiance's luminance, of its square,
+    and their counts, numpy (K, 2, 8) each (``refinement.from_points``)."""
     k = table.front_count
     total, squares = np.zeros((k * 2, 3)), np.zeros((k * 2, 3))
+    bins = [np.zeros(k * 2 * CHILDREN) for _ in range(3)]
     if not scene.emitters() or not k:
-        return total.reshape(k, 2, 3), total.reshape(k, 2, 3)
+        empty = (total.reshape(k, 2, 3), total.reshape(k, 2, 3))
+        return empty + tuple(b.reshape(k, 2, CHILDREN) for b in bins) if children else empty
     lanes = k * 2 * samples
-    bsdf = white()
+    bsdf = white(table)
     for start in range(0, lanes, CHUNK):        # chunks of lanes, not of rays
         n = min(CHUNK, lanes - start)
         lane = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
@@ -71,12 +76,21 @@ def direct_irradiance(scene, table, seed, samples=DIRECT_SAMPLES):
         sums, sq = dr.zeros(mi.Color3f, k * 2), dr.zeros(mi.Color3f, k * 2)
         dr.scatter_add(sums, value, slot)
         dr.scatter_add(sq, value * value, slot)
-        dr.eval(sums, sq)
+        child = [dr.zeros(mi.Float, k * 2 * CHILDREN) for _ in bins] if children else []
+        if children:           # the point's irradiance, in its child
+            where = slot * CHILDREN + child_index(table, table.locate(si))
+            brought = mi.luminance(value)
+            for b, x in zip(child, (brought, brought * brought, mi.Float(1.0))):
+                dr.scatter_add(b, x, where)
+        dr.eval(sums, sq, child)
         total += np.array(sums, dtype=np.float64).T
         squares += np.array(sq, dtype=np.float64).T
+        for b, c in zip(bins, child):
+            b += np.array(c, dtype=np.float64)
     mean = total / samples
     var = np.maximum(squares / samples - mean * mean, 0.0) / max(samples - 1, 1)
-    return mean.reshape(k, 2, 3), np.sqrt(var).reshape(k, 2, 3)
+    out = (mean.reshape(k, 2, 3), np.sqrt(var).reshape(k, 2, 3))
+    return out + tuple(b.reshape(k, 2, CHILDREN) for b in bins) if children else out
 
 
 def side_values(scene, table):

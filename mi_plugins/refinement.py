@@ -107,8 +107,9 @@ def patch_sizes(table):
 def choose(table, sums, squares, threshold, min_size, budget):
     """The front patches to split: ``sums`` (K, 2, 8) what each child of each patch side
     received (luminance, any unit: deposits or irradiance sums), ``squares`` (K, 2, 8) the
-    sums of the squares of the deposits behind them (a child's sum has about their square
-    root as its standard error, whatever the deposits' spread); at most as many as keep the
+    sums of the squares of the deposits behind them (under a uniform density, a child's
+    sum has the square root of its area's share of the patch's squares as its standard
+    error, whatever the deposits' spread: a child that received nothing is tested too); at most as many as keep the
     patches within ``budget`` (a split adds up to 3 or 7), the largest relative variations
     first."""
     areas = child_areas(table)[:, None, :]                          # (K, 1, 8)
@@ -118,13 +119,34 @@ def choose(table, sums, squares, threshold, min_size, budget):
     mean = sums.sum(axis=2, keepdims=True) / total_area
     scale = np.maximum(np.abs(mean), 1e-300)
     deviation = np.abs(density - mean)
-    noise = Z * np.sqrt(np.maximum(squares, 0.0)) / np.maximum(areas, 1e-300)
-    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (squares > 0)
+    # a child's standard error if the patch received a uniform density (the null hypothesis):
+    # its area's share of the squares of all the patch's deposits (an empty child has one too)
+    pooled = np.maximum(squares, 0.0).sum(axis=2, keepdims=True) * (areas / total_area)
+    noise = Z * np.sqrt(pooled) / np.maximum(areas, 1e-300)
+    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (pooled > 0)
     score = np.where(significant, deviation / scale, 0.0).max(axis=(1, 2))
     eligible = (score > 0) & (patch_sizes(table) > 2.0 * min_size)
     order = np.argsort(-np.where(eligible, score, -1.0), kind="stable")[:int(eligible.sum())]
     room = max(0, int(budget) - table.front_count)
     return np.sort(order[:room // 3])
+
+
+def from_points(table, values, squares, counts):
+    """(sums, squares) for :func:`choose` from measurements of the irradiance at uniformly
+    random points of the patches, binned by child (K, 2, 8) each: their sums, the sums of
+    their squares, their counts. A child's sum is its area times its points' mean (a
+    count-free estimate: the number of points falling in a child does not count as
+    variation), its squares those of the points' deviations from their child's mean
+    (the spread within the children: a variation between them is no noise), each point
+    carrying the patch's area over the patch's points: the pooled standard error is then
+    the points' spread over the square root of a child's expected count."""
+    areas = child_areas(table)[:, None, :]
+    n = counts.sum(axis=2, keepdims=True)
+    mean = values.sum(axis=2, keepdims=True) / np.maximum(n, 1)
+    child_mean = np.where(counts > 0, values / np.maximum(counts, 1), mean)
+    spread = np.maximum(squares - values * child_mean, 0.0)
+    weight = areas.sum(axis=2, keepdims=True) / np.maximum(n, 1)
+    return areas * child_mean, spread * weight * weight
 
 
 def refined(table, split):

@@ -26,6 +26,7 @@ STREAMS = {
     "tasks": 11,        # render seeds of the chain tasks of a distributed ray_bundle render
     "solution": 12,     # the direct light of the patches of a view-independent solution
     "display": 13,      # camera paths of the display modes of a solution
+    "refine": 14,       # ray_bundle's measurement of the direct light in the children of patches
 }
 
 

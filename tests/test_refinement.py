@@ -90,17 +90,21 @@ def _split_patches(scene, seed=31):
 
 
 def test_splits_follow_the_shadow_boundary():
-    """Every patch split in the first round lies within one patch size of the shadow's
+    """Every patch split, in every round, lies within one patch size of the shadow's
     boundary (a patch whose light varies inside it), and there are several."""
     scene = _shadow_scene()
     base, rounds = _split_patches(scene)
-    assert rounds and len(rounds[0]) >= 3, rounds
-    floor = base.shape_index_np[:base.front_count] == [s.id() for s in base.shapes].index("floor")
-    split = np.array(rounds[0])
-    assert np.all(floor[split])
-    centre = np.array([base.elements_np["centre"][base.elements_np["patch"] == p].mean(axis=0) for p in split])
-    size = np.sqrt(2 * base.areas_np[split])
-    assert np.all(_shadow_distance(centre) < size), (_shadow_distance(centre), size)
+    assert sum(len(r) for r in rounds) >= 4, rounds
+    floor_shape = [s.id() for s in base.shapes].index("floor")
+    for i, split in enumerate(rounds):
+        table = refinement.replay(base, rounds[:i])
+        split = np.array(split)
+        assert np.all(table.shape_index_np[split] == floor_shape)
+        el = table.elements_np
+        leaf = el["leaf"]
+        centre = np.array([el["centre"][leaf & (el["patch"] == p)].mean(axis=0) for p in split])
+        size = np.sqrt(2 * table.areas_np[split])
+        assert np.all(_shadow_distance(centre) < size), (i, _shadow_distance(centre), size)
 
 
 def test_uniform_light_splits_nothing():

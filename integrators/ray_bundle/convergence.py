@@ -49,7 +49,9 @@ class PowerTrace:
         """Add iteration ``index`` (an opaque UInt32 inside the window) of ``state``."""
         total = sum(state.L[1:], state.L[0])
         power = dr.sum(mi.luminance(total) * self.area)
-        reflected = dr.sum(mi.luminance(state.R) * self.area)
+        # (the environment's light reflected once arrives in full from the first iteration:
+        # a source of the model, not a part that grows)
+        reflected = dr.sum(mi.luminance(state.R - state.sky) * self.area)
         dr.scatter(self.state.values, power, 2 * index)
         dr.scatter(self.state.values, reflected, 2 * index + 1)
 

@@ -12,6 +12,7 @@ Dr.Jit value (directions, seeds, random states), never a Python number, so a rep
 never reuses a stale value.
 """
 import dataclasses
+import gc
 from collections import OrderedDict
 
 import drjit as dr
@@ -147,8 +148,12 @@ class StepCache:
         key = key + (enabled,)
         if key not in self.steps:
             self.steps[key] = (FrozenStep("_advance", enabled), FrozenStep("_image", enabled))
-            while len(self.steps) > self.size:
-                self.steps.popitem(last=False)
+            if len(self.steps) > self.size:
+                while len(self.steps) > self.size:
+                    self.steps.popitem(last=False)
+                # free the evicted recordings' scenes before this one's steps record: a
+                # plugin of theirs alive would be a call target outside the new steps' inputs
+                gc.collect()
         self.steps.move_to_end(key)
         return self.steps[key]
 

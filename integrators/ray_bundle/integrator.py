@@ -25,9 +25,11 @@ DEFAULT_CHAINS = 64
 #: renders whose frozen steps are kept (one per scene and settings), for every ray_bundle
 #: of the process together: a recording holds its scene's arrays, and a cache inside the
 #: integrator, which its scene holds, would be a reference cycle through C++ that Python's
-#: garbage collector cannot free (every discarded scene would stay alive, and Dr.Jit
-#: traces every live plugin instance: later renders slow down)
-FROZEN_CACHE = 2
+#: garbage collector cannot free. Only the last: a recording that keeps an earlier scene
+#: alive keeps its plugins alive, and a frozen step whose calls would reach plugins not
+#: among its inputs cannot be recorded (every later scene's render ran its ~150 kernels one
+#: by one, 10x slower)
+FROZEN_CACHE = 1
 STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
@@ -442,7 +444,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         if preview is not None:
             run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.window)
         run.run(steps, directions)
-        split = refine.choose(self, run) if self.refine and not self.progress.interrupted else ()
+        split = refine.choose(self, run, scene, seed) if self.refine and not self.progress.interrupted else ()
         if len(split):                   # the solve goes on on the refined patches
             refined, origin, _ = refinement.refined(table, split)
             self.refinements = [split.tolist()]

@@ -47,7 +47,7 @@ class IrradianceAverage:
         self.fronts = table.front_count
         back = np.arange(table.count) >= table.front_count
         self.target = mi.UInt32((table.front_of_np * 2 + back).astype(np.uint32))
-        self.bsdf = white()          # (held: a frozen step finds the plugins it calls among its inputs)
+        self.bsdf = white(table)        # (held: a frozen step finds the plugins it calls among its inputs)
         self.state = IrradianceState([], dr.opaque(mi.Float, 0.0), rng)
         self.reset()
 

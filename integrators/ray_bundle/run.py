@@ -137,7 +137,7 @@ class Run:
     # ------------------------------------------------------------------ frozen steps
     def _advance(self, state, new_dirs, averaged, index):
         transport, average = self.transport, self.average
-        incoming = transport.transfer(state)
+        incoming, from_sky = transport.transfer(state)
         if averaged:
             if average is not None:
                 average.add(state.dirs, self.integ._averaged_radiance(state), incoming)
@@ -145,7 +145,7 @@ class Run:
                 self.trace.record(state, index)
             if self.irradiance is not None:
                 self.irradiance.add(state.dirs, incoming)
-        new = transport.reflect(state, incoming, new_dirs)
+        new = transport.reflect(state, incoming, new_dirs, from_sky)
         dr.eval(new, incoming, transport.mutable(), average.state if average is not None else None,
                 self.trace.state if self.trace is not None else None,
                 self.irradiance.state if self.irradiance is not None else None)

@@ -36,10 +36,14 @@ REHIT = 1e-4
 class ChainState:
     """What one iteration hands to the next: the chains' directions ``dirs`` (one
     Vector3f per chain), the radiance every patch sends along each side, per order
-    (``L``, a list), and its part ``R`` carried by the bundles (L minus the source term)."""
+    (``L``, a list), its part ``R`` carried by the bundles (L minus the source term), and
+    the part of R that is the environment's light reflected once (``sky``; zero without
+    an environment the bundles carry): a source too for the convergence model, which
+    arrives in full from the first iteration."""
     dirs: mi.Vector3f
     L: list
     R: mi.Color3f
+    sky: mi.Color3f
 
 
 @dataclass
@@ -125,9 +129,15 @@ class ChildStats:
         self.state = ChildSums(dr.zeros(mi.Float, size), dr.zeros(mi.Float, size))
         dr.make_opaque(self.state.sums, self.state.squares)
 
-    def add(self, located, si, toward, value, active):
+    def index(self, located, si, toward, active):
+        """The bin of the child holding the hit ``located`` on the side facing ``toward``."""
         side = dr.select(dr.dot(si.n, toward) > 0, 0, 1)
-        index = (located[0] * 2 + side) * CHILDREN + child_index(self.table, located, active)
+        return (located[0] * 2 + side) * CHILDREN + child_index(self.table, located, active)
+
+    def add(self, located, si, toward, value, active):
+        self.add_at(self.index(located, si, toward, active), value, active)
+
+    def add_at(self, index, value, active):
         brought = mi.luminance(value)
         dr.scatter_add(self.state.sums, brought, index, active, mode=SPLAT_MODE)
         dr.scatter_add(self.state.squares, brought * brought, index, active, mode=SPLAT_MODE)
@@ -203,14 +213,14 @@ class Transport:
         si, tri, _ = self._patch_points(dirs)
         zero = lambda: dr.zeros(mi.Color3f, self.layout.lanes)
         L = [self.source(si, tri)] + [zero() for _ in range(self.layout.orders - 1)]
-        return ChainState(dirs, L, zero())
+        return ChainState(dirs, L, zero(), zero() if self.environment is not None else mi.Color3f(0.0))
 
     def transfer(self, state):
         """Walk every chain's bundle of parallel lines along its direction d (jittered
         every iteration; all successive hits of each line) and return the incoming power
         per unit projected area of every patch, summed over the lines, for every side
         and order: side 0 arriving along +d (sent by the previous hit facing +d), side 1
-        along -d."""
+        along -d; and its part that comes from the environment (``ChainState.sky``)."""
         layout, table, res = self.layout, self.layout.table, self.resolution
         per_chain = res * res
         k = dr.arange(mi.UInt32, self.lines)
@@ -223,11 +233,13 @@ class Transport:
         v = (mi.Float(line // res) + rng.next_float32()) * cell - self.radius
         ray = mi.Ray3f(self.center + frame.s * u + frame.t * v - d * (1.01 * self.radius), d)
         incoming = [dr.zeros(mi.Color3f, layout.lanes) for _ in state.L]
+        from_sky = dr.zeros(mi.Color3f, layout.lanes if self.environment is not None else 1)
+        stats = self.children
         back = (layout.sides - 1) * layout.slots     # offset of the side whose radiance travels along -d
         scene, area = self.scene, cell * cell
         sky_ahead, sky_behind = self.sky(d)
 
-        def body(ray, active, prev, prev_fwd, prev_src, first, last_shape, last_prim, rng):
+        def body(ray, active, prev, prev_fwd, prev_src, prev_child, first, last_shape, last_prim, rng):
             pi = scene.ray_intersect_preliminary(ray, active)
             found = active & pi.is_valid()
             si = pi.compute_surface_interaction(ray, mi.RayFlags.All, found)
@@ -244,37 +256,48 @@ class Transport:
             arriving = self.carried(state, prev, prev_src, exchange)
             for inc, value in zip(incoming, arriving):
                 dr.scatter_add(inc, value * area, slot, exchange, mode=SPLAT_MODE)
-            if self.children is not None:      # where in the receiving patch it arrives
-                self.children.add(located, si, -d, sum(arriving[1:], arriving[0]) * area, exchange)
+            if stats is not None:      # where in the receiving patch it arrives
+                stats.add(located, si, -d, sum(arriving[1:], arriving[0]) * area, exchange)
             if back:                   # the receiving side sends back along -d (si.wi is -d)
                 own = self.point_source(si, exchange, rng) if self.point_sources else None
                 for inc, value in zip(incoming, self.carried(state, slot + back, own, exchange)):
                     dr.scatter_add(inc, value * area, prev + back, exchange, mode=SPLAT_MODE)
             if self.environment is not None:     # the first surface on a line sees the sky behind it
                 lit = hit & first & receives
-                dr.scatter_add(incoming[0], sky_behind * area, slot, lit, mode=SPLAT_MODE)
+                for target in (incoming[0], from_sky):
+                    dr.scatter_add(target, sky_behind * area, slot, lit, mode=SPLAT_MODE)
+                if stats is not None:
+                    stats.add(located, si, -d, sky_behind * area, lit)
                 if back:                         # a line leaving the scene: its last surface sees the sky
                     lit = active & ~pi.is_valid() & prev_fwd
-                    dr.scatter_add(incoming[0], sky_ahead * area, prev + back, lit, mode=SPLAT_MODE)
+                    for target in (incoming[0], from_sky):
+                        dr.scatter_add(target, sky_ahead * area, prev + back, lit, mode=SPLAT_MODE)
+                    if stats is not None:
+                        stats.add_at(prev_child, sky_ahead * area, lit)
             ahead = mi.SurfaceInteraction3f(si)
             ahead.wi = si.to_local(d)
             src = (dr.select(hit & sends, self.point_source(ahead, hit & sends, rng), prev_src)
                    if self.point_sources else prev_src)
             beyond = si.p + si.n * dr.mulsign(LINE_EPSILON * scale, dr.dot(si.n, d))
+            child = (dr.select(hit, stats.index(located, si, d, hit), prev_child)
+                     if stats is not None and self.environment is not None else prev_child)
             return (mi.Ray3f(beyond, d), found, dr.select(hit, layout.slot_of(sender, chain), prev),
-                    dr.select(hit, hit & sends, prev_fwd), src, first & ~hit, shape, mi.UInt32(pi.prim_index), rng)
+                    dr.select(hit, hit & sends, prev_fwd), src, child, first & ~hit, shape,
+                    mi.UInt32(pi.prim_index), rng)
 
         # loop state: the line's ray, whether it is still inside the scene, the slot of
-        # its previous hit, whether that hit faces +d (sends along it) and the source
-        # radiance it sends, no hit yet, the shape and primitive of the last surface found
-        # (to tell re-hits of it), and the line's random stream (the source terms)
+        # its previous hit, whether that hit faces +d (sends along it), the source
+        # radiance it sends and its child's bin (refinement: where the sky ahead arrives),
+        # no hit yet, the shape and primitive of the last surface found (to tell re-hits
+        # of it), and the line's random stream (the source terms)
         start = (u * u + v * v) <= self.radius * self.radius
         none = dr.full(mi.UInt32, 0xFFFFFFFF, self.lines)
         out = dr.while_loop((ray, start, dr.zeros(mi.UInt32, self.lines), mi.Bool(False),
-                             dr.zeros(mi.Color3f, self.lines), mi.Bool(True), none, none, rng),
+                             dr.zeros(mi.Color3f, self.lines), dr.zeros(mi.UInt32, self.lines), mi.Bool(True),
+                             none, none, rng),
                             lambda ray, active, *rest: active, body)
         self.streams.lines = out[-1]
-        return incoming
+        return incoming, from_sky
 
     def point_source(self, si, active, rng):
         """The source term the surface point ``si`` sends toward ``si.wi`` (world
@@ -312,7 +335,7 @@ class Transport:
         look.wi = d
         return ahead, mi.Color3f(self.environment.eval(look))
 
-    def reflect(self, state, incoming, new_dirs):
+    def reflect(self, state, incoming, new_dirs, from_sky):
         """The next iteration's radiance along every side of ``new_dirs``: the source S
         plus the reflection R = weight * f * (incoming along +-d) / A_i (unbounded), or
         the orders S, T(incoming_0), ..., T(incoming_{K-2}) (finite depth)."""
@@ -328,8 +351,9 @@ class Transport:
             return sum((f[j] * dr.gather(mi.Color3f, inc, layout.slot_of(tri, chain, j))
                         for j in range(layout.sides)), mi.Color3f(0.0))
         S = self.source(si, tri)
+        sky = reflected(from_sky) if self.environment is not None else mi.Color3f(0.0)   # (one lane: no memory)
         if not self.finite:
             R = reflected(incoming[0])
-            return ChainState(new_dirs, [S + R], R)
+            return ChainState(new_dirs, [S + R], R, sky)
         orders = [reflected(inc) for inc in incoming[:-1]]
-        return ChainState(new_dirs, [S] + orders, sum(orders, mi.Color3f(0.0)))
+        return ChainState(new_dirs, [S] + orders, sum(orders, mi.Color3f(0.0)), sky)
