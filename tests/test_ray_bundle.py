@@ -1035,3 +1035,27 @@ def test_the_default_patch_size_sees_merged_meshes():
     integ = mi.load_dict({"type": "ray_bundle"})
     patches = predicted_patches(scene, integ.patch_size_for(scene), True)
     assert 300 < patches < 2000, patches
+
+
+def test_sky_light_is_not_mistaken_for_unconverged_interreflection():
+    """first_shot=false under a constant sky: the sky's light reflected once arrives in
+    full from the first iteration; the convergence model must not read it as a reflected
+    part still growing (it warned 'not converged' and extended the burn-in 8x). A floor
+    under a sky of radiance 1 reflects 0.5 (albedo 0.5, the whole hemisphere open)."""
+    import warnings
+    scene = mi.load_dict({
+        "type": "scene",
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "floor": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}},
+        "sensor": {"type": "perspective", "fov": 20, "to_world": mi.ScalarTransform4f().look_at(
+            origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+            "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}}}})
+    integ = mi.load_dict({"type": "ray_bundle", "first_shot": False, "chains": 8, "resolution": 16,
+                          "iterations": 8, "burn_in": 4})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        means = [float(np.mean(np.array(mi.render(scene, integrator=integ, spp=1, seed=s))[..., :3]))
+                 for s in range(4)]
+    assert not [str(w.message) for w in caught if "converge" in str(w.message) or "burn" in str(w.message)]
+    se = np.std(means, ddof=1) / np.sqrt(len(means))
+    assert abs(np.mean(means) - 0.5) < 4 * se + 0.005, (means, se)
