@@ -67,8 +67,8 @@ def test_a_changing_literal_is_caught(monkeypatch):
 
     def literal(self, state):
         calls[0] += 1
-        incoming = original(self, state)
-        return [x * (1.0 + 1e-7 * calls[0]) for x in incoming]      # a new literal every iteration
+        incoming, from_sky = original(self, state)
+        return [x * (1.0 + 1e-7 * calls[0]) for x in incoming], from_sky     # a new literal every iteration
     monkeypatch.setattr(transfer.Transport, "transfer", literal)
     scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(CONFIGS["ray_bundle"])
     new = new_kernels_per_step(scene)
