@@ -24,8 +24,6 @@ negated by ``flip_normals``; a cluster's, the area-weighted mean of its triangle
 Build it at the top level of an integrator's ``render()``.
 """
 
-import gc
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -360,9 +358,6 @@ def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True):
     from mi_plugins.fingerprint import scene_fingerprint
     key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster))
     if not _LAST or _LAST[0][0] != key:
-        if _LAST:
-            _LAST.clear()
-            gc.collect()    # the earlier scene freed now: its plugins alive would stop this scene's frozen steps
         _LAST[:] = [(key, MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster))]
     return _LAST[0][1]
 

@@ -148,12 +148,11 @@ class StepCache:
         key = key + (enabled,)
         if key not in self.steps:
             self.steps[key] = (FrozenStep("_advance", enabled), FrozenStep("_image", enabled))
-            if len(self.steps) > self.size:
-                while len(self.steps) > self.size:
-                    self.steps.popitem(last=False)
-                # free the evicted recordings' scenes before this one's steps record: a
-                # plugin of theirs alive would be a call target outside the new steps' inputs
-                gc.collect()
+            evicted = len(self.steps) > self.size
+            while len(self.steps) > self.size:
+                self.steps.popitem(last=False)
+            if evicted:     # free the evicted recordings' scenes before this one's steps record: a
+                gc.collect()    # plugin of theirs alive would be a call target outside the new steps' inputs
         self.steps.move_to_end(key)
         return self.steps[key]
 
