@@ -46,12 +46,19 @@ class CameraPass:
         # the differential variant: 'irradiancemeter' and 'batch' implement only that one
         # (Mitsuba 3.9.1: their sample_ray raises "not implemented"), as Mitsuba's path calls
         ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, offset), aperture)
+        count = dr.width(idx)
+        if dr.width(ray.o) != count or dr.width(ray.d) != count or dr.width(weight) != count:
+            # a sensor whose rays ignore the film sample (radiancemeter: one fixed ray) gives
+            # one lane: widened, so that every camera sample draws its own numbers downstream
+            grow = dr.zeros(mi.Float, count)
+            ray = mi.Ray3f(ray.o + grow, ray.d + grow, ray.maxt + grow, ray.time + grow, ray.wavelengths)
+            weight = mi.Color3f(weight) + grow
         self.ray = mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths)
         self.weight = mi.Color3f(weight)
         # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
         self.pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
         self.sampler = sampler
-        self.count = dr.width(idx)
+        self.count = count
         self.per_pixel = int(per_pixel)
         self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
 

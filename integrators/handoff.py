@@ -36,9 +36,15 @@ def has_non_smooth(bsdf):
 class Handoff:
     """Continue camera paths through non-smooth lobes with Mitsuba's ``volpath``."""
 
-    def __init__(self, max_depth=-1):
+    def __init__(self, max_depth=-1, max_used=1):
         self.max_depth = int(max_depth)
         self._paths = {}
+        # made now, for every depth ``sample`` can ask for: a plugin created while a
+        # kernel is being traced changes that trace, so a render's first kernels would
+        # differ from its later renders' and be compiled twice (and frozen steps must
+        # not create plugins)
+        for used in ([1] if self.max_depth < 0 else range(1, max(int(max_used), 1) + 1)):
+            self._path(-1 if self.max_depth < 0 else max(self.max_depth - used, 0))
 
     def _path(self, depth):
         if depth not in self._paths:

@@ -33,7 +33,8 @@ INTEGRATORS = list(expected.INTEGRATORS)
 #: the refused and N/A cells (no render) always run
 ALWAYS = ("bsdf:roughconductor", "bsdf:conductor", "bsdf:plastic", "bsdf:dielectric", "bsdf:null", "bsdf:mask",
           "bsdf:bumpmap", "emitter:spot", "emitter:envmap", "format:rgba", "case:light_facing_ceiling",
-          "case:negative_emission", "depth:2", "package:phong", "package:simulated_area")
+          "case:negative_emission", "depth:2", "package:phong", "package:simulated_area", "case:textured_area_sphere",
+          "sensor:radiancemeter")
 
 
 def _cells():

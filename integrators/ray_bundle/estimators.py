@@ -120,12 +120,8 @@ class Estimator:
     def __init__(self, transport, hide_emitters, max_depth=-1):
         self.transport, self.hide_emitters, self.max_depth = transport, hide_emitters, int(max_depth)
         self.group = transport.layout.chains      # chains per camera pass (fewer: see limits.camera_group)
-        self.handoff = Handoff(self.max_depth)
-        self.handoff.needed = any(s.bsdf() is not None and has_non_smooth_scalar(s.bsdf())
-                                  for s in transport.scene.shapes())
-        if self.handoff.needed:           # made now: a render's frozen steps must not create plugins
-            for depth in ([-1] if self.max_depth < 0 else range(1, self.max_depth)):
-                self.handoff._path(depth)
+        needed = any(s.bsdf() is not None and has_non_smooth_scalar(s.bsdf()) for s in transport.scene.shapes())
+        self.handoff = Handoff(self.max_depth, max_used=max(self.max_depth, 1)) if needed else None
 
     def order_limit(self, used):
         """Per lane: the highest order a visible point after ``used`` segments may read
@@ -152,7 +148,7 @@ class Estimator:
             nee = valid if depth < 0 else valid & (used + 1 <= depth)
             if transport.first_shot:
                 value += direct_light_mis(scene, si, bsdf, rng, nee, SMOOTH_ONLY)
-            if self.handoff.needed:       # the delta lobes of a mixed BSDF (plastic's specular layer)
+            if self.handoff is not None:  # the delta lobes of a mixed BSDF (plastic's specular layer)
                 value += self.handoff.sample(scene, cam.sampler, si, bsdf, used if depth >= 0 else 1, valid,
                                              max_used=max(depth, 1))
             value = path.emission + path.throughput * value

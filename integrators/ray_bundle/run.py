@@ -105,7 +105,7 @@ class Run:
         self.leaves = jit_leaves(self.transport, self.estimator, self.average, self.trace, self.irradiance,
                                  frame._blocks)
         # the camera sampler is used inside a step only by the hand-off of delta lobes
-        self.uses_sampler = self.estimator is not None and self.estimator.handoff.needed
+        self.uses_sampler = self.estimator is not None and self.estimator.handoff is not None
         self.key = self._key(integ, frame, table)
         self.advance, self.image = integ.step_cache.get(self.key, freezable(scene, frame.sensor)
                                                         or not self.uses_sampler)
