@@ -128,6 +128,15 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "extended: a test of the extended tier (make test-extended)")
 
 
+def pytest_collection_finish(session):
+    """Everything alive after collection (modules, test items, their parameters) lives
+    until the end: moved out of the garbage collector's sight, so that the collection
+    after every test (``_collect_scenes``) only looks at what the tests made (measured:
+    tests/test_parameters.py, 1882 tests, 105 s -> 4.7 s in one process)."""
+    gc.collect()
+    gc.freeze()
+
+
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: k for k, name in enumerate(FIRST)}
     items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST)))

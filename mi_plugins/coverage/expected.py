@@ -151,7 +151,8 @@ QMC_LIGHTTRACE_SMOOTH = displayed(QMC_LIGHTTRACE, "smooth", 64,
                                   row_spp=dict(QMC_LIGHTTRACE.row_spp, **{"case:textured_area_sphere": 4}),
                                   power=dict(QMC_LIGHTTRACE.power, **{"case:negative_emission": (
                                       0.2, "emitters of both signs: the image mean is a small difference of "
-                                           "large patch values (10.2 % measured)"), "sensor:radiancemeter": _ONE_POINT}))
+                                           "large patch values (10.2 % measured)"),
+                                      "sensor:radiancemeter": _ONE_POINT}))
 
 INTEGRATORS = {s.name: s for s in (STOCHASTIC_RAY, RAY_BUNDLE, QMC_LIGHTTRACE, RAY_BUNDLE_SMOOTH,
                                    QMC_LIGHTTRACE_SMOOTH)}
