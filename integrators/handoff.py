@@ -44,7 +44,7 @@ class Handoff:
         # differ from its later renders' and be compiled twice (and frozen steps must
         # not create plugins)
         for used in ([1] if self.max_depth < 0 else range(1, max(int(max_used), 1) + 1)):
-            self._path(-1 if self.max_depth < 0 else max(self.max_depth - used, 0))
+            self._path(-1 if self.max_depth < 0 else self.max_depth - used)
 
     def _path(self, depth):
         if depth not in self._paths:

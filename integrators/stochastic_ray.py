@@ -184,14 +184,16 @@ class StochasticRayIntegrator(CoreIntegrator):
             averaged = it >= steps.state.burn_in
             carried = _magnitude(chain[1])
             chain[0], chain[1], chain[2], continued = self._step(frame, *chain, rng, phi_e, averaged)
-            total = frame.block_total("light") if averaged else None
             window = self.auto_burn_in and steps.state.burn_in // 2 <= it < self.burn_in
             ratio = (dr.sum(carried), dr.sum(_magnitude(continued))) if window else None
-            (totals if averaged else []).append(total)
             (ratios if window else []).append(ratio)
-            return chain, rng.state, total, ratio
+            return chain, rng.state, ratio
 
         def after(it):
+            # the block's sum once the step is evaluated: read in the step's own kernel, the
+            # block being splatted into would split it in two, the second tracing it again
+            if it >= steps.state.burn_in:
+                totals.append(frame.block_total("light"))
             if self.auto_burn_in and it + 1 == self.burn_in and ratios:
                 self.measured_albedo = burn_in.lengthen(self.plugin, steps, ratios, self.max_iterations)
             if it + 1 == steps.count and burn_in.drift_check(self.plugin, steps, totals, self.max_iterations,
