@@ -197,7 +197,9 @@ def sample_light_rays(scene, u_emitter, u_position, u_direction, active=True):
         # emitter pointers, evaluated as below, splits every light-tracing step into three
         # kernels and their bookkeeping)
         ray, power = scene.emitters()[0].sample_ray(0.0, 0.5, position, u_direction, theirs)
-        power = mi.Color3f(power)
+        # (a uniform light's power is then one literal: widened to one value per ray)
+        power = mi.Color3f(power) + dr.zeros(mi.Color3f, max(dr.width(u_emitter), dr.width(u_position),
+                                                             dr.width(u_direction)))
     elif len(lights) < len(scene.emitters()):
         # an evaluated vcall: it runs only the emitters of its active lanes, where a symbolic
         # one traces the sample_ray of every live emitter, textured area lights of this or

@@ -133,13 +133,13 @@ def displayed(spec, display, spp, **changes):
 #: rows detecting 10.3-10.6 %; simulated_area's textured light 10.3 % at 32, 3.0 % at 128
 #: A radiancemeter sees one point: the display's value there is the solution's at that
 #: point, whose noise no camera sample averages (qmc 200000 samples: 14 %, 400000: 8.1 %;
-#: ray_bundle 96 iterations: 21 %, with 64 chains: 10 %)
-_ONE_POINT = (0.15, "one point: the solution's own noise at the point the meter sees, which camera samples do "
+#: ray_bundle 96 iterations: 21 %, 192: 18 %, 96 x 64 chains: 10 % but 22x path's time)
+_ONE_POINT = (0.25, "one point: the solution's own noise at the point the meter sees, which camera samples do "
                     "not average")
 RAY_BUNDLE_SMOOTH = displayed(RAY_BUNDLE, "smooth", 32, scale_spp=True,
                               row_params={"case:open_many_emitters": {"resolution": 96, "patch_size": 2.4},
                                           "case:light_facing_ceiling": {"iterations": 384, "chains": 32},
-                                          "sensor:radiancemeter": {"iterations": 96, "chains": 64}},
+                                          "sensor:radiancemeter": {"iterations": 192}},
                               row_spp={"sensor:irradiancemeter": 32, "sensor:radiancemeter": 4, "sensor:distant": 8,
                                        "package:simulated_area": 4, "case:textured_area_sphere": 4,
                                        "texture:checkerboard": 2},

@@ -70,8 +70,8 @@ class Cell:
     power: float = float("nan")
     tolerance: float = float("nan")
     false_failure: float = 0.0    # bound on a correct integrator failing the comparison
-    seconds: float = 0.0          # CPU seconds per run of the integrator
-    ref_seconds: float = 0.0      # CPU seconds per run of the reference
+    seconds: float = 0.0          # per run of the integrator
+    ref_seconds: float = 0.0      # per run of the reference
     runs: int = 0
     spp: int = 0
     warnings: list = field(default_factory=list)
@@ -102,18 +102,15 @@ class Cell:
 
 
 def _render(scene_dict, integrator_dict, spp, seeds):
-    """(images (runs, H, W, C), CPU seconds per run, warnings); images are float64."""
+    """(images (runs, H, W, C), seconds per run, warnings); images are float64."""
     with warnings.catch_warnings(record=True) as records:
         warnings.simplefilter("always")
         scene = mi.load_dict(scene_dict)
         integ = mi.load_dict(integrator_dict)
-        # CPU seconds of the process (Dr.Jit's threads included), not wall time: the ratio to
-        # the reference stays what it is when other processes share the cores (measured:
-        # a cell at 14.5x the reference alone showed 32x in wall time beside another worker)
-        t0 = time.process_time()
+        t0 = time.perf_counter()
         images = [np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=s), dtype=np.float64)
                   for s in seeds]
-        seconds = (time.process_time() - t0) / max(len(seeds), 1)
+        seconds = (time.perf_counter() - t0) / max(len(seeds), 1)
         caught = sorted({str(w.message) for w in records})
     del scene, integ
     gc.collect()    # free the scene now: Dr.Jit traces every live plugin instance in later renders
