@@ -119,12 +119,14 @@ ORBIT_METHODS = {
 ORBIT_SPP = (4, 8, 16, 32, 64, 128, 256)
 
 
-def orbit(res, quick, say):
+def orbit(res, quick, say, sampler="independent"):
     """One solve and every frame displayed, at the fewest camera samples whose worst
     checked frame reaches path's RMSE at PATH_ORBIT_SPP: on the full image, and away from
     the visible light (its edge pixels carry a coverage noise per camera sample that every
-    method shares)."""
+    method shares). ``sampler``: the scene's sampler, the same for ``path`` and the
+    displays."""
     d, _ = rsm.scene_dict("cornell", res)
+    d["sensor"]["sampler"] = {"type": sampler, "sample_count": 1}
     scene = mi.load_dict(d)
     frames = views.orbit(scene, ORBIT_FRAMES, turns=ORBIT_TURNS)
     refs = {k: orbit_reference(scene, frames[k], res, k, 1024 if quick else 4096) for k in ORBIT_CHECKED}
@@ -134,15 +136,15 @@ def orbit(res, quick, say):
     images = views.render_camera_path(scene, path, frames, spp=PATH_ORBIT_SPP, seed=1)
     path_seconds = time.perf_counter() - t0
     target = {k: np.array(errors(np.array(images[k])[..., :3], *refs[k])) for k in refs}
-    say("\n### Orbit: %d frames at %d px (path %d spp a frame: %.1f s in all)\n"
-        % (ORBIT_FRAMES, res, PATH_ORBIT_SPP, path_seconds))
+    say("\n### Orbit: %d frames at %d px, `%s` sampler (path %d spp a frame: %.1f s in all)\n"
+        % (ORBIT_FRAMES, res, sampler, PATH_ORBIT_SPP, path_seconds))
     say("| method | settings | criterion | display spp | total s (solve + frames) | / path | worst frame RMSE / path's |")
     say("|---|---|---|---|---|---|---|")
     for method, configs in ORBIT_METHODS.items():
         for cfg in configs:
             views.render_camera_path(scene, mi.load_dict(cfg), frames[:1], spp=1, seed=998)     # compile
             found = {}
-            for spp in ORBIT_SPP:
+            for spp in [n for n in ORBIT_SPP if mi.load_dict({"type": sampler, "sample_count": n}).sample_count() == n]:
                 integ = mi.load_dict(cfg)
                 t0 = time.perf_counter()
                 out = views.render_camera_path(scene, integ, frames, spp=spp, seed=2)
@@ -197,6 +199,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="one setting per method, short references")
     ap.add_argument("--parts", default="single,orbit,first")
+    ap.add_argument("--orbit-samplers", default="independent,ldsampler",
+                    help="the scene samplers the orbit is measured with (comma-separated Mitsuba sampler names)")
     ap.add_argument("--write-docs", action="store_true", help="rewrite the results part of docs/solutions.md")
     args = ap.parse_args()
     lines = []
@@ -211,7 +215,8 @@ def main():
                 continue
             single(name, res, args.quick, say)
     if "orbit" in parts:
-        orbit(128, args.quick, say)
+        for sampler in args.orbit_samplers.split(","):
+            orbit(128, args.quick, say, sampler)
     if "first" in parts:
         first(say)
     if args.write_docs:

@@ -110,8 +110,8 @@ class SolutionIntegrator(CoreIntegrator):
         last = [0]
 
         def preview(solution, done, total):
-            if done - last[0] < self.preview_every and done < total:
-                return
+            if last[0] < done < last[0] + self.preview_every and done < total:
+                return                      # (a count that starts again, e.g. an extended burn-in, shows)
             last[0] = done
             frame = Frame(scene, sensor, 1, 0, self.plugin)
             solution.complete(scene, table)

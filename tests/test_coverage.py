@@ -23,6 +23,8 @@ from mi_plugins.coverage import catalog, expected, matrix, rows
 #: MAX_POWER_LIMIT: a cell blind to a factor of two would not be a test)
 POWER_LIMIT = 0.1
 MAX_POWER_LIMIT = 0.5
+#: the largest slowness a cell's ``Spec.slowness`` exception may allow, with its reason
+MAX_SLOWNESS_LIMIT = 50.0
 SEED = 2000
 
 ROWS = list(matrix.rows())
@@ -98,10 +100,12 @@ def test_every_row_runs_in_every_test_run():
 
 def test_expectations_name_rows():
     for spec in expected.INTEGRATORS.values():
-        for key in list(spec.refused) + list(spec.na) + list(spec.row_params) + list(spec.row_spp) + list(spec.power):
+        for key in list(spec.refused) + list(spec.na) + list(spec.row_params) + list(spec.row_spp) + list(spec.row_runs) + list(spec.power):
             assert key in matrix.rows(), (spec.name, key)
         for key, (limit, why) in spec.power.items():
             assert POWER_LIMIT < limit <= MAX_POWER_LIMIT and why, (spec.name, key)
+        for key, (limit, why) in spec.slowness.items():
+            assert key in matrix.rows() and matrix.SLOWNESS_LIMIT < limit <= MAX_SLOWNESS_LIMIT and why, (spec.name, key)
 
 
 @pytest.mark.parametrize("row,integrator", list(_cells()))
@@ -181,3 +185,11 @@ def test_a_slow_cell_fails(monkeypatch):
     monkeypatch.setattr(matrix, "SLOWNESS_LIMIT", 1e-3)
     cell = matrix.run("bsdf:diffuse", _spec("path", {"type": "coverage_scaled_path"}), seed=budget.seed(SEED))
     assert cell.outcome == outcomes.FAIL and any("the reference's" in f for f in cell.failures), repr(cell)
+
+
+def test_a_slowness_exception_holds_for_its_row_only(monkeypatch):
+    monkeypatch.setattr(matrix, "SLOWNESS_LIMIT", 1e-3)
+    spec = _spec("path", {"type": "coverage_scaled_path"}, slowness={"bsdf:diffuse": (1e6, "a test")})
+    assert matrix.run("bsdf:diffuse", spec, seed=budget.seed(SEED)).outcome == outcomes.PASS
+    other = matrix.run("bsdf:roughplastic", spec, seed=budget.seed(SEED))
+    assert other.outcome == outcomes.FAIL and any("the reference's" in f for f in other.failures), repr(other)

@@ -299,3 +299,18 @@ def test_previews_show_the_solution_as_it_goes(integrator):
     integ.preview_callback = lambda image, done, total: seen.append((done, total, float(np.array(image).mean())))
     mi.render(scene, integrator=integ, spp=2, seed=budget.seed(10))
     assert len(seen) >= 2 and all(total >= done > 0 and mean > 0 for done, total, mean in seen), seen
+
+
+def test_ray_bundle_previews_begin_in_the_burn_in_and_leave_the_solution_as_it_was():
+    """The first image comes after the first iteration (the burn-in's running average),
+    and a solve with previews gives the solution of one without, bit for bit."""
+    scene = _floor_scene("rectangle")
+    plain = mi.load_dict({"type": "ray_bundle", "display": "smooth", "iterations": 8, "burn_in": 4})
+    expected = np.array(mi.render(scene, integrator=plain, spp=1, seed=budget.seed(11)))
+    integ = mi.load_dict({"type": "ray_bundle", "display": "smooth", "iterations": 8, "burn_in": 4,
+                          "preview_every": 1})
+    seen = []
+    integ.preview_callback = lambda image, done, total: seen.append((done, total, float(np.array(image).mean())))
+    image = np.array(mi.render(scene, integrator=integ, spp=1, seed=budget.seed(11)))
+    assert [d for d, _, _ in seen] == list(range(1, 9)) and seen[0][2] > 0, seen
+    assert np.array_equal(image, expected)

@@ -202,8 +202,9 @@ class RayBundleIntegrator(SolutionIntegrator):
        - int
        - 0
        - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set and a
-         display from the solution, every N averaged iterations of a solve the image of
-         the solution so far (one sample per pixel)
+         display from the solution, every N iterations of a solve (the burn-in's
+         included: its own running average until the averaged iterations begin) the
+         image of the solution so far (one sample per pixel)
      * - refine
        - bool
        - false
@@ -442,7 +443,7 @@ class RayBundleIntegrator(SolutionIntegrator):
                                      self.bidirectional, run.total + total + 2)
         steps = steps if steps is not None and not self.refine else self.steps(run.total, run.burn_in)
         if preview is not None:
-            run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.window)
+            run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.total)
         run.run(steps, directions)
         split = refine.choose(self, run, scene, seed) if self.refine and not self.progress.interrupted else ()
         if len(split):                   # the solve goes on on the refined patches
@@ -454,7 +455,7 @@ class RayBundleIntegrator(SolutionIntegrator):
             refine.map_direct(run.transport.direct, after.transport.direct, origin)
             state = refine.map_state(run.state, run.layout, after.layout, origin)
             if preview is not None:
-                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.window)
+                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.total)
             after.run(self.steps(after.total, after.burn_in), directions, state=state)
             run, table = after, refined
         return self._solution(run, scene, table, seed)

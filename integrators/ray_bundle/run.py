@@ -58,7 +58,7 @@ class Run:
         self.integ, self.frame, split = integ, frame, frame.task
         scene, spp = frame.scene, 1 if solve_only else frame.spp
         self.solve_only = solve_only
-        self.after = None            # after(averaged iterations so far), called after each averaged step
+        self.after = None            # after(iterations so far): a preview, called after every step
         self.gather_only = split is not None and split.mode == "gather"
         limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
@@ -135,9 +135,11 @@ class Run:
         pass
 
     # ------------------------------------------------------------------ frozen steps
-    def _advance(self, state, new_dirs, averaged, index):
+    def _advance(self, state, new_dirs, averaged, index, early=False):
         transport, average = self.transport, self.average
         incoming, from_sky = transport.transfer(state)
+        if early and self.irradiance is not None:     # a burn-in step whose irradiance a preview shows
+            self.irradiance.add(state.dirs, incoming)
         if averaged:
             if average is not None:
                 average.add(state.dirs, self.integ._averaged_radiance(state), incoming)
@@ -220,16 +222,25 @@ class Run:
         """Run ``steps``' iterations, the first ``burn_in`` of them not averaged; returns
         the last state, or None when the render was stopped."""
         last = [state]
+        # with previews, the burn-in's irradiance is averaged too (the first images), and
+        # forgotten when the averaged iterations begin
+        # (its patch points' stream too: the solution is the one a render without previews makes)
+        early = self.after is not None and self.irradiance is not None
+        start = type(self.irradiance.state.rng)(self.irradiance.state.rng) if early else None
 
         def step(m):
             averaged = m >= burn_in
+            if early and m == burn_in and m > 0:
+                self.irradiance.reset()
+                self.irradiance.state.rng = start
             index = dr.opaque(mi.UInt32, max(m - burn_in, 0))
-            new, incoming = self.advance(self, last[0], chain_directions(directions.next()), averaged, index)
+            new, incoming = self.advance(self, last[0], chain_directions(directions.next()), averaged, index,
+                                         early and not averaged)
             if averaged and self.image_iterations:
                 self.image_pass(last[0], incoming, "chain", m, "iterations")
             last[0] = new
 
-        after = (lambda m: self.after(m - burn_in + 1) if m >= burn_in else None) if self.after else None
+        after = (lambda m: self.after(m + 1)) if self.after else None
         return last[0] if self.integ.run_steps(self.frame, steps, step, after) else None
 
     def final_gathering(self, steps, count):

@@ -28,7 +28,9 @@ class Row:
     no cell of the row can be built here), ``wrap`` (the row's feature is an integrator
     wrapping the tested one), ``max_depth`` (the depth of every cell; None: -1),
     ``reference_scene`` (the reference renders this scene instead, e.g. with the
-    ``independent`` sampler where the row's sampler is the feature)."""
+    ``independent`` sampler where the row's sampler is the feature), ``reference_runs``
+    (its runs where not the matrix's default: a row whose reference's spread sets the
+    cells' power)."""
     key: str
     plugin: str = None
     build: object = None
@@ -38,6 +40,7 @@ class Row:
     max_depth: int = None
     reference_scene: object = None
     spp_scale: float = 1.0
+    reference_runs: int = None
     params: dict = field(default_factory=dict)   # given to every cell's integrator and to the reference
     note: str = ""
     tags: tuple = field(default_factory=tuple)
@@ -137,7 +140,7 @@ def _emitter_rows():
     # the stage light textured, on an analytic shape and on a sphere
     rows.append(Row("case:textured_area_sphere", None, lambda r: stage(r, emitter={
         "type": "sphere", "center": [0.2, 1.9, 0.3], "radius": 0.2, "bsdf": diffuse(0.0),
-        "emitter": {"type": "area", "radiance": bitmap(noise((8, 16, 3), 4, 1.0, 8.0))}})))
+        "emitter": {"type": "area", "radiance": bitmap(noise((8, 16, 3), 4, 1.0, 8.0))}}), reference_runs=16))
     rows += _textured_light_rows()
     return rows
 
@@ -438,7 +441,8 @@ def _case_rows():
             Row("case:no_shapes", None, lambda r: {"type": "scene", "sensor": camera(r), "sky": {
                 "type": "envmap", "bitmap": sky_bitmap()}}, note="a scene of a sensor and an environment map only"),
             Row("case:no_emitters", None, no_emitters, note="the stage without its light: a black image"),
-            Row("case:light_facing_ceiling", None, cove, note="an area light facing a ceiling 1 cm above it"),
+            Row("case:light_facing_ceiling", None, cove, note="an area light facing a ceiling 1 cm above it",
+                reference_runs=32),
             Row("case:negative_emission", None, negative, note="an area light of radiance -2 beside the stage light"),
             Row("case:flip_normals", None, flipped, note="the floor wound downward, with flip_normals"),
             Row("case:open_many_emitters", None, open_many_emitters, max_depth=4,
