@@ -224,7 +224,8 @@ class Run:
         last = [state]
         # with previews, the burn-in's irradiance is averaged too (the first images), and
         # forgotten when the averaged iterations begin
-        # (its patch points' stream too: the solution is the one a render without previews makes)
+        # (its patch points' stream too: the solution is the one a render without previews
+        # makes, up to float rounding)
         early = self.after is not None and self.irradiance is not None
         start = type(self.irradiance.state.rng)(self.irradiance.state.rng) if early else None
 
