@@ -119,6 +119,12 @@ ORBIT_METHODS = {
 ORBIT_SPP = (4, 8, 16, 32, 64, 128, 256)
 
 
+def kept_counts(sampler, counts):
+    """The sample counts of ``counts`` that ``sampler`` keeps (``ldsampler``, ``stratified``
+    round the others)."""
+    return [n for n in counts if mi.load_dict({"type": sampler, "sample_count": n}).sample_count() == n]
+
+
 def orbit(res, quick, say, sampler="independent"):
     """One solve and every frame displayed, at the fewest camera samples whose worst
     checked frame reaches path's RMSE at PATH_ORBIT_SPP: on the full image, and away from
@@ -126,7 +132,7 @@ def orbit(res, quick, say, sampler="independent"):
     method shares). ``sampler``: the scene's sampler, the same for ``path`` and the
     displays."""
     d, _ = rsm.scene_dict("cornell", res)
-    d["sensor"]["sampler"] = {"type": sampler, "sample_count": 1}
+    d["sensor"]["sampler"] = {"type": sampler, "sample_count": PATH_ORBIT_SPP}   # a count every sampler keeps
     scene = mi.load_dict(d)
     frames = views.orbit(scene, ORBIT_FRAMES, turns=ORBIT_TURNS)
     refs = {k: orbit_reference(scene, frames[k], res, k, 1024 if quick else 4096) for k in ORBIT_CHECKED}
@@ -144,7 +150,7 @@ def orbit(res, quick, say, sampler="independent"):
         for cfg in configs:
             views.render_camera_path(scene, mi.load_dict(cfg), frames[:1], spp=1, seed=998)     # compile
             found = {}
-            for spp in [n for n in ORBIT_SPP if mi.load_dict({"type": sampler, "sample_count": n}).sample_count() == n]:
+            for spp in kept_counts(sampler, ORBIT_SPP):
                 integ = mi.load_dict(cfg)
                 t0 = time.perf_counter()
                 out = views.render_camera_path(scene, integ, frames, spp=spp, seed=2)

@@ -222,10 +222,9 @@ class Run:
         """Run ``steps``' iterations, the first ``burn_in`` of them not averaged; returns
         the last state, or None when the render was stopped."""
         last = [state]
-        # with previews, the burn-in's irradiance is averaged too (the first images), and
-        # forgotten when the averaged iterations begin
-        # (its patch points' stream too: the solution is the one a render without previews
-        # makes, up to float rounding)
+        # with previews, the burn-in's irradiance is averaged too (the first images); it is
+        # forgotten when the averaged iterations begin, and its patch points' stream starts
+        # again, so that the solution is the one a render without previews makes
         early = self.after is not None and self.irradiance is not None
         start = type(self.irradiance.state.rng)(self.irradiance.state.rng) if early else None
 
