@@ -266,7 +266,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         k >= 2; the direct light is added per point or per patch by the display)."""
         def partial(tables, paths, done, total):
             at = refinement.replay(table, self.refinements)
-            preview(Solution(tables, at.areas_np, self._meta(scene, at, seed, paths)), done, total)
+            preview(Solution(tables, at.areas_np, self._meta(scene, at, seed, paths)), done, total, at)
         tables, error, refined = particle_phase(self, scene, table, seed, rendering=self.display == "gather",
                                                 preview=partial if preview is not None else None)
         return Solution(tables, refined.areas_np, self._meta(scene, refined, seed, self.paths_used), error=error)

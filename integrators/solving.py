@@ -46,7 +46,8 @@ class SolutionIntegrator(CoreIntegrator):
 
     def compute_solution(self, scene, table, seed, preview=None, sensor=None, **solve):
         """Solve ``scene`` (patches ``table``) with ``seed``: a Solution;
-        ``preview(solution_so_far, done, total)`` may be called along the way; ``sensor``:
+        ``preview(solution_so_far, done, total[, patches])`` may be called along the way
+        (``patches``: the table that solution is on, when refinement has split ``table``); ``sensor``:
         the sensor of the render that asks for it (None: the scene's first)."""
         raise NotImplementedError
 
@@ -102,20 +103,21 @@ class SolutionIntegrator(CoreIntegrator):
                        getattr(self, "gather_samples", 1), steps)
 
     def _previewer(self, scene, sensor, table):
-        """``preview(solution, done, total)``: the image (one camera sample per pixel) of the
+        """``preview(solution, done, total, patches=table)``: the image (one camera sample per pixel) of the
         solution so far, in the display mode ('smooth' for 'gather'), handed to
         ``preview_callback(image, done, total)`` every ``preview_every`` steps."""
         sensor = sensor if sensor is not None else scene.sensors()[0]
         mode = self.display if self.display != "gather" else "smooth"
         last = [0]
 
-        def preview(solution, done, total):
+        def preview(solution, done, total, patches=table):
+            # ``patches``: the table the solution is on (a refined one, after splits)
             if last[0] < done < last[0] + self.preview_every and done < total:
                 return                      # (a count that starts again, e.g. an extended burn-in, shows)
             last[0] = done
             frame = Frame(scene, sensor, 1, 0, self.plugin)
-            solution.complete(scene, table)
-            display.render(frame, display.View(solution, table, mode), self.max_depth, -1, self.hide_emitters, 1)
+            solution.complete(scene, patches)
+            display.render(frame, display.View(solution, patches, mode), self.max_depth, -1, self.hide_emitters, 1)
             self.preview_callback(mi.TensorXf(frame.develop()), done, total)
         return preview
 

@@ -144,3 +144,15 @@ def test_a_refined_solution_saves_and_loads(tmp_path):
     mine, theirs = _tables_by_shape(solution), _tables_by_shape(again)
     assert mine.keys() == theirs.keys() and all(np.array_equal(mine[k], theirs[k]) for k in mine)
     assert len(solution.to_ply(str(tmp_path / "ply"))) == 3
+
+
+@pytest.mark.parametrize("integrator", ["ray_bundle", "qmc_lighttrace"])
+def test_previews_show_the_refined_patches(integrator):
+    """Previews after a split show the solution on the refined patches (they were
+    displayed with the unrefined table: a shape mismatch that stopped the render)."""
+    integ = mi.load_dict({"type": integrator, "display": "smooth", "refine": True, "preview_every": 1})
+    seen = []
+    integ.preview_callback = lambda image, done, total: seen.append(float(np.array(image).mean()))
+    image = np.array(mi.render(_shadow_scene(), integrator=integ, spp=1, seed=budget.seed(32)))
+    assert integ.refinements and integ.refinements[0], "nothing split: the test sees no refined table"
+    assert len(seen) >= 2 and all(np.isfinite(seen)) and np.isfinite(image).all(), seen

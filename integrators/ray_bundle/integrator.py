@@ -455,7 +455,8 @@ class RayBundleIntegrator(SolutionIntegrator):
             refine.map_direct(run.transport.direct, after.transport.direct, origin)
             state = refine.map_state(run.state, run.layout, after.layout, origin)
             if preview is not None:
-                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.total)
+                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.total,
+                                                   refined)
             after.run(self.steps(after.total, after.burn_in), directions, state=state)
             run, table = after, refined
         return self._solution(run, scene, table, seed)
