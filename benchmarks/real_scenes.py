@@ -40,13 +40,20 @@ from analysis import interp_loglog  # noqa: E402
 ROOT = os.path.dirname(HERE)
 DOCS = os.path.join(ROOT, "docs", "real_scenes.md")
 MARK = "@@worker-result "
-INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_paper", "qmc_lighttrace")
+INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_paper", "qmc_lighttrace",
+               "ray_bundle_smooth", "qmc_smooth")
 PAPER = {k: v for k, v in PAPER_SETTINGS.items() if k != "iterations"}   # the budget sets the iterations
 SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray": "defaults: 32 it, burn 8",
             "ray_bundle": "defaults: 64 ch, res 32", "ray_bundle_paper": "paper: 1 ch, res 128",
-            "qmc_lighttrace": "defaults (1e5 paths)"}
-UNIT = {"ray_bundle": "it", "ray_bundle_paper": "it"}   # others: spp
-STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_paper")   # iterations, a progress callback
+            "qmc_lighttrace": "defaults (1e5 paths)", "ray_bundle_smooth": "smooth, 16 spp per it",
+            "qmc_smooth": "smooth, 25k paths, 16 spp"}
+UNIT = {"ray_bundle": "it", "ray_bundle_paper": "it", "ray_bundle_smooth": "it", "qmc_smooth": "x 25k"}   # others: spp
+#: the view-independent displays: one solve and a display of it, both grown with the budget
+#: (16 camera samples per iteration or per 25 000 particle paths: a camera sample of the
+#: display costs a small fraction of either, and the visible light's edges need many)
+SMOOTH = {"ray_bundle_smooth": lambda b: (dict(type="ray_bundle", display="smooth", iterations=b), 16 * b),
+          "qmc_smooth": lambda b: (dict(type="qmc_lighttrace", display="smooth", samples=25000 * b), 16 * b)}
+STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_paper", "ray_bundle_smooth")   # iterations, a progress callback
 SCALING = ("ray_bundle", "ray_bundle_paper", "qmc_lighttrace")   # the columns of the scaling table
 
 
@@ -55,6 +62,8 @@ def config(name, budget):
     """(integrator dict, spp) of a budget: spp for path, ptracer and stochastic_ray; global
     iterations for ray_bundle (iterations = budget, spp 1; burn-in 8); spp for qmc_lighttrace with its default particle paths (100 000: a fixed
     cost, and a fixed error of the patch radiances that more camera samples do not lower)."""
+    if name in SMOOTH:
+        return SMOOTH[name](budget)
     if name in ("path", "ptracer"):
         return dict(type=name, max_depth=-1), budget
     if name == "stochastic_ray":
@@ -114,7 +123,7 @@ def ladder(args, sname, name):
     out = dict(triangles=triangles, base_mb=rss_mb(), rungs=[], status=None, kept=float(keep.mean()))
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     # the tiny warm-up (1 spp): 2 iterations (1 burn-in), or 1000 particle paths
-    tiny = dict(samples=1000) if name == "qmc_lighttrace" else dict(iterations=2, burn_in=1) if name in STEPPED else {}
+    tiny = dict(samples=1000) if name in ("qmc_lighttrace", "qmc_smooth") else dict(iterations=2, burn_in=1) if name in STEPPED else {}
     warm = mi.load_dict(dict(config(name, 1)[0], **tiny))
     _, out["warmup_s"], _, stop = render(scene, warm, 1, seed=999, limit=args.cap)
     out["patches"] = len(warm.triangle_areas) if name == "qmc_lighttrace" else None

@@ -110,10 +110,10 @@ class Solution:
     def complete(self, scene, table):
         """Compute what is made on demand, for ``scene`` and its patch ``table``: the patch
         geometry (``field``), the direct irradiance and the flat radiance of every patch side."""
-        from mi_plugins.patchfield import PatchField
+        from mi_plugins.patchfield import field_of
         from mi_plugins.integrators import patch_light
         if self.field is None:
-            self.field = PatchField(table)
+            self.field = field_of(table)
         if self.direct is None:
             self.direct, _ = patch_light.direct_irradiance(scene, table, self.seed)
         if self.radiance is None or self.emission is None:
@@ -179,7 +179,7 @@ class Solution:
         the scene does not match: shape count, each shape's triangles, patches and
         content), its patches in ``scene``'s order."""
         from mi_plugins.meshtable import MeshTable
-        from mi_plugins.patchfield import PatchField
+        from mi_plugins.patchfield import field_of
         with np.load(path) as data:
             meta = json.loads(bytes(data["meta"]).decode())
             arrays = {name: data[name] for name in ARRAYS if name in data}
@@ -199,7 +199,7 @@ class Solution:
                 raise SolutionMismatch("%s: shape '%s' has %d patches here and %d in the solution"
                                        % (path, stored["id"], counts[index], stored["patches"]))
         solution._reorder(order, table)
-        solution.field = PatchField(table)
+        solution.field = field_of(table)
         return solution
 
     def _reorder(self, order, table):

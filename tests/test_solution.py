@@ -182,6 +182,28 @@ def test_a_solution_is_kept_for_its_scene_and_seed(integrator):
     assert integ.solve_count == 4
 
 
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_solves_on_the_same_patches_share_their_field(integrator):
+    """The smooth field depends on the patches' geometry only: another seed's solve uses
+    the first one's; a scene whose geometry moved gets its own, at the new positions."""
+    scene = _floor_scene("mesh")
+    integ = mi.load_dict({"type": integrator, "display": "smooth"})
+    mi.render(scene, integrator=integ, spp=1, seed=budget.seed(3))
+    first = integ._cached[1].field
+    mi.render(scene, integrator=integ, spp=1, seed=budget.seed(4))
+    assert integ.solve_count == 2 and integ._cached[1].field is first
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("vertex_positions"))
+    moved = np.array(params[key]).reshape(-1, 3) - [0.0, 0.2, 0.0]
+    params[key] = type(params[key])(moved.ravel())
+    params.update()
+    mi.render(scene, integrator=integ, spp=1, seed=budget.seed(4))
+    second = integ._cached[1].field
+    assert integ.solve_count == 3 and second is not first
+    assert first.vertex_positions[:, 1].min() == pytest.approx(0.0, abs=1e-6)
+    assert second.vertex_positions[:, 1].min() == pytest.approx(-0.2, abs=1e-6)
+
+
 def test_qmc_lighttrace_keeps_its_particles_when_it_gathers():
     scene = _floor_scene("rectangle")
     integ = mi.load_dict({"type": "qmc_lighttrace"})
