@@ -79,7 +79,8 @@ class MeshTable:
 
     Per patch (fronts then backs): ``area``, ``normal`` (its side), ``surface_normal``,
     ``shape_index`` (and ``*_np`` numpy copies); per element: ``p0``, ``e1``, ``e2``,
-    ``uv0``, ``duv1``, ``duv2``, ``kind``, ``prim``, ``bounds``, ``frame``, ``element_patch``
+    ``uv0``, ``duv1``, ``duv2``, ``kind``, ``prim``, ``element_patch``; per analytic cell ``bounds``,
+    ``frame``
     (front patch), and the numpy geometry ``elements_np`` of :mod:`mi_plugins.patchfield`."""
 
     NONE = 0xFFFFFFFF
@@ -101,7 +102,8 @@ class MeshTable:
         self.element_offsets = np.concatenate([[0], np.cumsum(elements)[:-1]]).astype(np.int64)
         self.front_count = int(patches.sum())
         self.element_count = int(elements.sum())
-        elem = lambda key: np.concatenate([part[key] for part in parts])
+        self._joined = _join(parts, ELEMENT_ARRAYS)
+        elem = lambda key: self._joined[key] if key in self._joined else np.concatenate([part[key] for part in parts])
         leaf = elem("child") < 0
         element_patch = np.concatenate([np.where(part["patch"] >= 0, part["patch"] + off, -1)
                                         for part, off in zip(parts, self.face_offsets)])
@@ -130,6 +132,7 @@ class MeshTable:
         self.points_np = np.concatenate([part["points"] for part in parts])
         self._lookups(scene, parts, elements)
         self._elements(parts, element_patch, e_area, leaf)
+        del self._joined
         self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
         self.surface_normal = mi.Normal3f(*normal[self.front_of_np].T)   # the surface's (Mitsuba's si.n)
         self.area = mi.Float(self.areas_np)
@@ -173,13 +176,21 @@ class MeshTable:
         """Per element: geometry for kernels and its first child (split elements); per front
         patch: its leaf elements sorted, with the cumulative share of its area (choosing an
         element uniformly in area)."""
-        elem = lambda key: np.concatenate([part[key] for part in parts])
-        tri, uv, bounds, frame, kind = elem("triangle"), elem("uv"), elem("bounds"), elem("frame"), elem("kind")
+        elem = lambda key: self._joined[key] if key in self._joined else np.concatenate([part[key] for part in parts])
+        tri, uv, kind = elem("triangle"), elem("uv"), elem("kind")
+        # an analytic cell's parameter bounds and shape frame, kept for the cells only (on
+        # meshes they are unused zeros: 100 bytes per triangle); cell_of: an element's row
+        cells = np.flatnonzero(kind != 0)
+        cell_rows = lambda key: np.concatenate([part[key][part["kind"] != 0] for part in parts])
+        bounds, frame = cell_rows("bounds"), cell_rows("frame")
+        cell_of = np.zeros(len(kind), np.uint32)
+        cell_of[cells] = np.arange(len(cells))
         shape = np.repeat(np.arange(len(parts)), [len(part["area"]) for part in parts])
         child = np.concatenate([np.where(part["child"] >= 0, part["child"] + off, -1)
                                 for part, off in zip(parts, self.element_offsets)])
-        self.elements_np = dict(triangle=tri, kind=kind, bounds=bounds, frame=frame, area=e_area, normal=elem("normal"),
-                                patch=element_patch, centre=elem("centre"), shape=shape, leaf=leaf, depth=elem("depth"))
+        self.elements_np = dict(triangle=tri, kind=kind, cells=cells, bounds=bounds, frame=frame, area=e_area,
+                                normal=elem("normal"), patch=element_patch, centre=elem("centre"), shape=shape,
+                                leaf=leaf, depth=elem("depth"))
         #: the most times an element was split (the descent of locate())
         self.max_depth = int(elem("depth").max(initial=0))
         self._child = mi.UInt32(np.where(child >= 0, child, self.NONE).astype(np.uint32))
@@ -190,8 +201,10 @@ class MeshTable:
             mi.Vector2f(*(uv[:, 2] - uv[:, 0]).T)
         self.kind = mi.UInt32(kind)
         self.prim = mi.UInt32(elem("prim"))
-        self.bounds = tuple(mi.Float(bounds[:, k]) for k in range(4))
-        self.frame = [mi.Float(frame[:, k]) for k in range(frame.shape[1])]
+        placeholder = lambda a: np.concatenate([a, np.zeros((2,) + a.shape[1:])])   # (never width 1)
+        self._cell_of = mi.UInt32(cell_of)
+        self.bounds = tuple(mi.Float(placeholder(bounds)[:, k]) for k in range(4))
+        self.frame = [mi.Float(placeholder(frame)[:, k]) for k in range(frame.shape[1])]
         self.element_normal = mi.Normal3f(*elem("normal").T)
         self.element_patch = mi.UInt32(np.where(leaf, element_patch, self.NONE).astype(np.uint32))
         leaves = np.flatnonzero(leaf)
@@ -327,9 +340,10 @@ class MeshTable:
         uv0, duv1, duv2 = g(self.uv0, mi.Point2f), g(self.duv1, mi.Vector2f), g(self.duv2, mi.Vector2f)
         n = g(self.element_normal, mi.Normal3f)
         shape = self.shape_pointer(tri)
-        uv = tessellation.sample_cell(kind, tuple(g(x, mi.Float) for x in self.bounds), sample)
-        cell_p, cell_n = tessellation.ShapeFrame.apply([g(x, mi.Float) for x in self.frame],
-                                                       *tessellation.local_point(kind, uv))
+        cell = g(self._cell_of, mi.UInt32)
+        c = lambda arr: dr.gather(mi.Float, arr, cell, analytic)
+        uv = tessellation.sample_cell(kind, tuple(c(x) for x in self.bounds), sample)
+        cell_p, cell_n = tessellation.ShapeFrame.apply([c(x) for x in self.frame], *tessellation.local_point(kind, uv))
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(tri))
         si.p = dr.select(analytic, cell_p, p0 + e1 * b.x + e2 * b.y)
         si.uv = dr.select(analytic, uv, uv0 + duv1 * b.x + duv2 * b.y)
@@ -349,6 +363,25 @@ class MeshTable:
 #: seconds to build. Held here, not by an integrator, which its scene holds (a reference
 #: cycle through C++ would keep every scene alive); this keeps the last scene alive only
 _LAST = []
+
+
+#: the per-element arrays of the parts that the table keeps joined (``elements_np``)
+ELEMENT_ARRAYS = ("triangle", "uv", "kind", "normal", "centre", "area", "depth", "prim")
+
+
+def _join(parts, keys):
+    """{key: the parts' arrays ``key`` joined}; each part's entry becomes a view of the
+    joined array, so that the table and its parts (kept for refinements) hold one copy (on
+    a million triangles 190 MB each). Parts are never changed in place (a refinement copies)."""
+    joined = {}
+    for key in keys:
+        joined[key] = np.concatenate([part[key] for part in parts])
+        start = 0
+        for part in parts:
+            n = len(part[key])
+            part[key] = joined[key][start:start + n]
+            start += n
+    return joined
 
 
 def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True):

@@ -41,19 +41,19 @@ WELD_TOLERANCE = 1e-6
 MIN_SPREAD = 1e-3
 
 
-def _analytic_corners(kind, bounds, frame):
-    """(E, 4, 3) world corners (u0, v0), (u1, v0), (u0, v1), (u1, v1) of the analytic cells
-    among elements of ``kind`` (zeros for mesh elements)."""
-    corners = np.zeros((len(kind), 4, 3))
-    cells = np.flatnonzero(kind != 0)
+def _analytic_corners(kind, cells, bounds, frame):
+    """(C, 4, 3) world corners (u0, v0), (u1, v0), (u0, v1), (u1, v1) of the analytic cells
+    ``cells`` (element indices; ``bounds``, ``frame``: one row per cell) among elements of
+    ``kind``."""
+    corners = np.zeros((len(cells), 4, 3))
     if not len(cells):
         return corners
-    u0, u1, v0, v1 = (bounds[cells, j] for j in range(4))
-    columns = [mi.Float(frame[cells, j]) for j in range(frame.shape[1])]
+    u0, u1, v0, v1 = (bounds[:, j] for j in range(4))
+    columns = [mi.Float(frame[:, j]) for j in range(frame.shape[1])]
     for j, (u, v) in enumerate(zip([u0, u1, u0, u1], [v0, v0, v1, v1])):
         uv = mi.Point2f(mi.Float(u), mi.Float(v))
         p, _ = tessellation.ShapeFrame.apply(columns, *tessellation.local_point(mi.UInt32(kind[cells]), uv))
-        corners[cells, j] = np.array(p, dtype=np.float64).T.reshape(-1, 3)
+        corners[:, j] = np.array(p, dtype=np.float64).T.reshape(-1, 3)
     return corners
 
 
@@ -131,8 +131,8 @@ class PatchField:
         kind, tri = el["kind"], el["triangle"]
         self.elements, self.count = len(kind), table.front_count
         mesh = kind == 0
-        self.corners = np.where(mesh[:, None, None], np.concatenate([tri, tri[:, :1]], axis=1),
-                                _analytic_corners(kind, el["bounds"], el["frame"]))
+        self.corners = np.concatenate([tri, tri[:, :1]], axis=1)
+        self.corners[el["cells"]] = _analytic_corners(kind, el["cells"], el["bounds"], el["frame"])
         self.corner_count = np.where(mesh, 3, 4)
         self.kind, self.element_patch, self.element_normals = kind, el["patch"], el["normal"]
         self.element_shape, self.leaf = el["shape"], el["leaf"]
