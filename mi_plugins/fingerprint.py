@@ -11,6 +11,7 @@ digests (:func:`shape_digests`). An edit through ``mi.traverse`` followed by
 ``update()`` changes it; sensors, films, samplers and integrators do not enter it (they
 do not change the light).
 """
+import contextlib
 import hashlib
 import re
 
@@ -61,13 +62,44 @@ def shape_digest(shape):
     return h.hexdigest()
 
 
+#: id(scene) -> {what: value} for the scenes inside :func:`held` (hashing a million
+#: triangles takes 0.1 s, and one render asks for the digests up to four times)
+_HELD = {}
+
+
+@contextlib.contextmanager
+def held(scene):
+    """Within the block, ``scene``'s digests and fingerprint are computed once: for code
+    that does not change the scene meanwhile (one render)."""
+    key, outer = id(scene), id(scene) in _HELD
+    _HELD.setdefault(key, {})
+    try:
+        yield
+    finally:
+        if not outer:
+            _HELD.pop(key, None)
+
+
+def _memo(scene, what, make):
+    memo = _HELD.get(id(scene))
+    if memo is None:
+        return make()
+    if what not in memo:
+        memo[what] = make()
+    return memo[what]
+
+
 def shape_digests(scene):
     """The digest of every shape of ``scene``, in ``scene.shapes()`` order."""
-    return [shape_digest(shape) for shape in scene.shapes()]
+    return list(_memo(scene, "shapes", lambda: [shape_digest(shape) for shape in scene.shapes()]))
 
 
 def scene_fingerprint(scene):
     """A hex digest of ``scene``'s shapes and emitters, independent of their order."""
+    return _memo(scene, "scene", lambda: _scene_fingerprint(scene))
+
+
+def _scene_fingerprint(scene):
     parts = sorted(shape_digests(scene))
     for emitter in scene.emitters():
         if emitter.get_shape() is None:

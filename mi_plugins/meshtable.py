@@ -384,13 +384,16 @@ def _join(parts, keys):
     return joined
 
 
-def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True):
+def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None):
     """The :class:`MeshTable` of ``scene`` with these settings, built again only when the
     scene object, its content (``mi_plugins.fingerprint``) or the settings differ from the
-    last call's."""
+    last call's; ``before_build()`` (e.g. a memory check that predicts the patch count:
+    seconds on a million triangles) is called only when a table is built."""
     from mi_plugins.fingerprint import scene_fingerprint
     key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster))
     if not _LAST or _LAST[0][0] != key:
+        if before_build is not None:
+            before_build()
         _LAST[:] = [(key, MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster))]
     return _LAST[0][1]
 

@@ -24,7 +24,11 @@ SHAPES = {
 
 
 def _points(name, h=0.3):
-    scene = mi.load_dict({"type": "scene", "s": SHAPES[name]})
+    return _points_of({"type": "scene", "s": SHAPES[name]}, h)
+
+
+def _points_of(scene_dict, h):
+    scene = mi.load_dict(scene_dict)
     table = MeshTable(scene, "test", h=h)
     tri = dr.arange(mi.UInt32, table.count)
     rng = budget.rng(3)
@@ -50,6 +54,64 @@ def test_patch_points_are_where_mitsubas_rays_find_them(name):
     # the tables' flat normals agree with the normal at the patch (cells: within the cell)
     cos = np.sum(table.normals_np * np.array(si.n).T, axis=1)
     assert cos.min() > 0.8
+
+
+def test_cells_among_mesh_elements_keep_their_own_frames():
+    """Bounds and frames are kept for the analytic cells only; with meshes before, between
+    and after them every patch point is still where Mitsuba's rays find it."""
+    scene, table, si, hit = _points_of({
+        "type": "scene", "a": SHAPES["obj_like_mesh"], "b": SHAPES["sphere"],
+        "c": {"type": "cube", "to_world": T().translate([4, 0, 0])},
+        "d": dict(SHAPES["disk"], to_world=T().translate([0, 6, 0]).rotate([1, 0, 0], 90).scale(2)),
+        "e": {"type": "cube", "to_world": T().translate([-4, 0, 0]).scale(0.5)}}, 0.3)
+    el = table.elements_np
+    assert 0 < len(el["cells"]) == len(el["frame"]) == len(el["bounds"]) == int(np.sum(el["kind"] != 0))
+    assert len(el["cells"]) < len(el["kind"])
+    assert np.all(np.array(hit.is_valid()))
+    assert np.abs(np.array(hit.p) - np.array(si.p)).max() < 1e-5
+    assert np.array_equal(np.array(table.patch(hit)), np.arange(table.count))
+
+
+def test_a_cached_table_runs_its_check_only_when_it_builds():
+    from mi_plugins import meshtable
+    scene = mi.load_dict({"type": "scene", "s": SHAPES["sphere"]})
+    calls = []
+    for _ in range(2):
+        meshtable.cached_table(scene, "test", 0.3, before_build=lambda: calls.append(1))
+    assert len(calls) == 1
+    meshtable.cached_table(scene, "test", 0.2, before_build=lambda: calls.append(1))
+    assert len(calls) == 2
+
+
+def test_ray_bundle_predicts_its_patches_only_for_a_new_table(monkeypatch):
+    """The memory check counts the patches without building them (seconds on a million
+    triangles): not again for a render whose table is kept."""
+    from mi_plugins import analytic
+    from mi_plugins.integrators.ray_bundle import limits
+    calls, real = [], limits.predicted_patches
+    monkeypatch.setattr(limits, "predicted_patches", lambda *a, **k: calls.append(1) or real(*a, **k))
+    scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(
+        {"type": "ray_bundle", "iterations": 2, "burn_in": 1, "chains": 4, "resolution": 8, "display": "smooth"})
+    for seed in (1, 2):
+        mi.render(scene, spp=1, seed=seed)
+    assert len(calls) == 1
+
+
+def test_a_render_hashes_its_scene_once(monkeypatch):
+    """Inside a render the scene's digests are computed once (a million triangles: 0.1 s a
+    time, asked for up to four times); outside, every call hashes again, so an edit
+    between renders is seen."""
+    from mi_plugins import analytic, fingerprint
+    calls, real = [], fingerprint.shape_digest
+    monkeypatch.setattr(fingerprint, "shape_digest", lambda shape: calls.append(1) or real(shape))
+    scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(
+        {"type": "qmc_lighttrace", "samples": 1000, "display": "smooth"})
+    shapes = len(scene.shapes())
+    mi.render(scene, spp=1, seed=1)
+    assert len(calls) == shapes
+    fingerprint.scene_fingerprint(scene)
+    fingerprint.scene_fingerprint(scene)
+    assert len(calls) == 3 * shapes
 
 
 @pytest.mark.parametrize("name", ["rectangle", "disk", "sphere", "cylinder", "cube_flipped", "obj_like_mesh"])

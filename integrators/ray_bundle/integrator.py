@@ -379,8 +379,10 @@ class RayBundleIntegrator(SolutionIntegrator):
     def patch_table(self, scene):
         """The patches of ``scene`` (checked against the memory first), with back sides."""
         h = self.patch_size_for(scene)
-        limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster), available_memory())
-        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster)
+        check = lambda: limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster),
+                                             available_memory())
+        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster,
+                            before_build=check)
 
     def _render_frame(self, frame):
         table = self.patch_table(frame.scene)
