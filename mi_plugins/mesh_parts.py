@@ -122,9 +122,11 @@ def mesh_part(verts, faces, uv, flipped, h, subdivide=True, cluster=True):
     groups = cluster_triangles(p, normal, h) if cluster and h is not None and len(faces) else None
     # a clustered triangle is small, hence not split: one element per parent there
     elem_patch = np.arange(n) if groups is None else _relabel(groups[parent], level)
+    corner = np.zeros(len(verts), bool)          # the hull's points: the vertices faces use (once each)
+    corner[faces.ravel()] = True
     return with_hierarchy(dict(kind=np.zeros(n, np.uint32), prim=parent.astype(np.uint32), nu=0, nv=0,
                                area=(area / count)[parent], normal=normal[parent], triangle=tri, uv=tuv,
-                               bounds=np.zeros((n, 4)), frame=np.zeros((n, 21)), points=p.reshape(-1, 3), parents=p,
+                               bounds=np.zeros((n, 4)), frame=np.zeros((n, 21)), points=verts[corner], parents=p,
                                level=level, first=np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64),
                                patch=elem_patch))
 

@@ -66,7 +66,12 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         return np.zeros(0, np.int64)
     cell = max(float(scale), 1e-30) * WELD_TOLERANCE * 4
     keys = np.round(points / cell).astype(np.int64)
-    _, group = np.unique(keys, axis=0, return_inverse=True)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    if float(np.prod(span.astype(np.float64))) < 2.0 ** 62:    # one integer per cell: a flat sort
+        _, group = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_inverse=True)
+    else:
+        _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()
     vertex = np.full(n, -1, np.int64)
     cos_limit, next_id = np.cos(np.radians(angle)), 0
@@ -131,8 +136,8 @@ class PatchField:
         kind, tri = el["kind"], el["triangle"]
         self.elements, self.count = len(kind), table.front_count
         mesh = kind == 0
-        self.corners = np.concatenate([tri, tri[:, :1]], axis=1)
-        self.corners[el["cells"]] = _analytic_corners(kind, el["cells"], el["bounds"], el["frame"])
+        corners = np.concatenate([tri, tri[:, :1]], axis=1)
+        corners[el["cells"]] = _analytic_corners(kind, el["cells"], el["bounds"], el["frame"])
         self.corner_count = np.where(mesh, 3, 4)
         self.kind, self.element_patch, self.element_normals = kind, el["patch"], el["normal"]
         self.element_shape, self.leaf = el["shape"], el["leaf"]
@@ -145,7 +150,8 @@ class PatchField:
                                    for k in range(3)], axis=1) / np.maximum(self.areas, 1e-300)[:, None]
         used = (np.arange(4)[None, :] < self.corner_count[:, None]) & leaf[:, None]
         element_of = np.repeat(np.arange(self.elements), 4).reshape(-1, 4)[used]
-        points = self.corners[used]
+        points = corners[used]
+        del corners
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0
         ids = weld(points, self.element_normals[element_of], extent)
         self.vertex_ids = np.zeros((self.elements, 4), np.int64)
@@ -155,6 +161,8 @@ class PatchField:
         self.vertex_positions[ids] = points          # welded corners coincide
         self._element_incidence = (element_of, ids)
         self._prepare_fit()
+        del self._element_incidence            # (only the fit reads it: 16 bytes per corner)
+        self.vertex_ids = self.vertex_ids.astype(np.uint32)
         self._jit = None
 
     # ------------------------------------------------------------------ fitting (numpy)
@@ -298,8 +306,8 @@ class PatchField:
     def jit(self):
         """The arrays kernels read (made once)."""
         if self._jit is None:
-            ids = np.concatenate([self.vertex_ids, np.zeros((2, 4), np.int64)])  # (never width 1)
-            self._jit = [mi.UInt32(ids[:, j].astype(np.uint32)) for j in range(4)]
+            ids = np.concatenate([self.vertex_ids, np.zeros((2, 4), np.uint32)])  # (never width 1)
+            self._jit = [mi.UInt32(ids[:, j]) for j in range(4)]
         return self._jit
 
     def weights(self, element, mesh, a, b, active=True):
