@@ -79,8 +79,7 @@ class MeshTable:
 
     Per patch (fronts then backs): ``area``, ``normal`` (its side), ``surface_normal``,
     ``shape_index`` (and ``*_np`` numpy copies); per element: ``p0``, ``e1``, ``e2``,
-    ``uv0``, ``duv1``, ``duv2``, ``kind``, ``prim``, ``element_patch``; per analytic cell ``bounds``,
-    ``frame``
+    ``uv0``, ``duv1``, ``duv2``, ``kind``, ``prim``, ``bounds``, ``frame``, ``element_patch``
     (front patch), and the numpy geometry ``elements_np`` of :mod:`mi_plugins.patchfield`."""
 
     NONE = 0xFFFFFFFF
@@ -178,13 +177,11 @@ class MeshTable:
         element uniformly in area)."""
         elem = lambda key: self._joined[key] if key in self._joined else np.concatenate([part[key] for part in parts])
         tri, uv, kind = elem("triangle"), elem("uv"), elem("kind")
-        # an analytic cell's parameter bounds and shape frame, kept for the cells only (on
-        # meshes they are unused zeros: 100 bytes per triangle); cell_of: an element's row
+        # an analytic cell's parameter bounds and shape frame, kept in numpy for the cells
+        # only (on meshes they are unused zeros: 200 bytes per triangle)
         cells = np.flatnonzero(kind != 0)
         cell_rows = lambda key: np.concatenate([part[key][part["kind"] != 0] for part in parts])
         bounds, frame = cell_rows("bounds"), cell_rows("frame")
-        cell_of = np.zeros(len(kind), np.uint32)
-        cell_of[cells] = np.arange(len(cells))
         shape = np.repeat(np.arange(len(parts)), [len(part["area"]) for part in parts])
         child = np.concatenate([np.where(part["child"] >= 0, part["child"] + off, -1)
                                 for part, off in zip(parts, self.element_offsets)])
@@ -201,10 +198,12 @@ class MeshTable:
             mi.Vector2f(*(uv[:, 2] - uv[:, 0]).T)
         self.kind = mi.UInt32(kind)
         self.prim = mi.UInt32(elem("prim"))
-        placeholder = lambda a: np.concatenate([a, np.zeros((2,) + a.shape[1:])])   # (never width 1)
-        self._cell_of = mi.UInt32(cell_of)
-        self.bounds = tuple(mi.Float(placeholder(bounds)[:, k]) for k in range(4))
-        self.frame = [mi.Float(placeholder(frame)[:, k]) for k in range(frame.shape[1])]
+        # the kernels read them by element, zeros on meshes (arrays of the cells only, read
+        # through a row index, crashed a ray_bundle render of a million triangles once
+        # Dr.Jit's allocation cache had been flushed between renders: not explained, not kept)
+        full_bounds, full_frame = _per_element(len(kind), cells, bounds), _per_element(len(kind), cells, frame)
+        self.bounds = tuple(mi.Float(full_bounds[:, k]) for k in range(4))
+        self.frame = [mi.Float(full_frame[:, k]) for k in range(full_frame.shape[1])]
         self.element_normal = mi.Normal3f(*elem("normal").T)
         self.element_patch = mi.UInt32(np.where(leaf, element_patch, self.NONE).astype(np.uint32))
         leaves = np.flatnonzero(leaf)
@@ -340,10 +339,9 @@ class MeshTable:
         uv0, duv1, duv2 = g(self.uv0, mi.Point2f), g(self.duv1, mi.Vector2f), g(self.duv2, mi.Vector2f)
         n = g(self.element_normal, mi.Normal3f)
         shape = self.shape_pointer(tri)
-        cell = g(self._cell_of, mi.UInt32)
-        c = lambda arr: dr.gather(mi.Float, arr, cell, analytic)
-        uv = tessellation.sample_cell(kind, tuple(c(x) for x in self.bounds), sample)
-        cell_p, cell_n = tessellation.ShapeFrame.apply([c(x) for x in self.frame], *tessellation.local_point(kind, uv))
+        uv = tessellation.sample_cell(kind, tuple(g(x, mi.Float) for x in self.bounds), sample)
+        cell_p, cell_n = tessellation.ShapeFrame.apply([g(x, mi.Float) for x in self.frame],
+                                                       *tessellation.local_point(kind, uv))
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(tri))
         si.p = dr.select(analytic, cell_p, p0 + e1 * b.x + e2 * b.y)
         si.uv = dr.select(analytic, uv, uv0 + duv1 * b.x + duv2 * b.y)
@@ -363,6 +361,13 @@ class MeshTable:
 #: seconds to build. Held here, not by an integrator, which its scene holds (a reference
 #: cycle through C++ would keep every scene alive); this keeps the last scene alive only
 _LAST = []
+
+
+def _per_element(count, cells, rows):
+    """(count, k) float64: ``rows`` at the elements ``cells``, zeros elsewhere."""
+    out = np.zeros((count,) + rows.shape[1:])
+    out[cells] = rows
+    return out
 
 
 #: the per-element arrays of the parts that the table keeps joined (``elements_np``)
