@@ -101,8 +101,8 @@ class MeshTable:
         self.element_offsets = np.concatenate([[0], np.cumsum(elements)[:-1]]).astype(np.int64)
         self.front_count = int(patches.sum())
         self.element_count = int(elements.sum())
-        self._joined = _join(parts, ELEMENT_ARRAYS)
-        elem = lambda key: self._joined[key] if key in self._joined else np.concatenate([part[key] for part in parts])
+        joined = _join(parts, ELEMENT_ARRAYS)
+        elem = lambda key: joined[key] if key in joined else np.concatenate([part[key] for part in parts])
         leaf = elem("child") < 0
         element_patch = np.concatenate([np.where(part["patch"] >= 0, part["patch"] + off, -1)
                                         for part, off in zip(parts, self.face_offsets)])
@@ -130,8 +130,7 @@ class MeshTable:
         #: points whose convex hull holds every patch (triangle vertices, analytic shapes' boxes)
         self.points_np = np.concatenate([part["points"] for part in parts])
         self._lookups(scene, parts, elements)
-        self._elements(parts, element_patch, e_area, leaf)
-        del self._joined
+        self._elements(parts, elem, element_patch, e_area, leaf)
         self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
         self.surface_normal = mi.Normal3f(*normal[self.front_of_np].T)   # the surface's (Mitsuba's si.n)
         self.area = mi.Float(self.areas_np)
@@ -171,11 +170,10 @@ class MeshTable:
         self._nu_by_id = by_id([p["nu"] for p in parts])
         self._nv_by_id = by_id([p["nv"] for p in parts])
 
-    def _elements(self, parts, element_patch, e_area, leaf):
+    def _elements(self, parts, elem, element_patch, e_area, leaf):
         """Per element: geometry for kernels and its first child (split elements); per front
         patch: its leaf elements sorted, with the cumulative share of its area (choosing an
-        element uniformly in area)."""
-        elem = lambda key: self._joined[key] if key in self._joined else np.concatenate([part[key] for part in parts])
+        element uniformly in area); ``elem(key)``: the per-element array ``key`` of all parts."""
         tri, uv, kind = elem("triangle"), elem("uv"), elem("kind")
         # an analytic cell's parameter bounds and shape frame, kept in numpy for the cells
         # only (on meshes they are unused zeros: 200 bytes per triangle)
