@@ -39,9 +39,11 @@ def _update(h, obj):
         if value is None:
             continue
         if dr.is_array_v(value):
-            data = np.array(dr.ravel(value) if dr.depth_v(value) > 1 else value)
+            flat = dr.ravel(value) if dr.depth_v(value) > 1 else value
+            # a view of Dr.Jit's memory where it can be (no copy of a million triangles)
+            data = np.ascontiguousarray(flat.numpy() if dr.is_jit_v(flat) else np.array(flat))
             h.update(str(data.dtype).encode())
-            h.update(np.ascontiguousarray(data).tobytes())
+            h.update(data)
         else:
             h.update(repr(value).encode())
 

@@ -971,6 +971,30 @@ def test_steps_are_recorded_once_and_replayed():
     assert_same_image(a, plain)
 
 
+def test_a_later_render_keeps_the_arrays_an_earlier_one_made_its_own():
+    """The first render copies the patch table's arrays mapped from numpy into memory of
+    Dr.Jit's own (a frozen step compiles for the alignment it saw); the next render of the
+    same scene keeps those copies instead of copying them again (0.34 s a render on a
+    million triangles), and an array in numpy's memory is still copied."""
+    from mi_plugins.integrators.ray_bundle import frozen
+    scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(rb(8, first_shot=True, average_diffuse=True))
+    integ = scene.integrator()
+    mi.render(scene, spp=1, seed=1)
+    table = integ.patch_table(scene)
+    arrays = lambda: {k: v for k, v in vars(table).items() if dr.is_jit_v(v) and dr.width(v) > 1}
+    first = arrays()
+    assert len(first) >= 5
+    mi.render(scene, spp=1, seed=2)
+    again = arrays()
+    assert all(again[k] is v for k, v in first.items()), sorted(k for k, v in first.items() if again[k] is not v)
+    buffer = np.zeros(1001, dtype=np.float32)
+    mapped = mi.Float(buffer[1:])                   # 4 bytes past numpy's (at least 16-byte) alignment
+    copy = frozen._owned(mapped)
+    dr.eval(copy)
+    assert copy is not mapped and frozen._owned(copy) is copy and frozen._aligned(copy)
+    assert not frozen._aligned(mapped)
+
+
 def test_a_replayed_step_follows_scene_edits():
     """A later render of an edited scene (a BSDF value, a shape moved) gives what a fresh
     integrator gives: the steps read the scene's arrays as inputs, and a change of the
