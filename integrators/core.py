@@ -137,13 +137,18 @@ class Frame:
                         "'multijitter' or 'ldsampler' sampler")
                 self._seed_per_pass = True
         sampler.set_samples_per_wavefront(per_pixel)
-        film = self.film
-        border = film.rfilter().border_size() if film.sample_border() else 0
-        lanes = (self.width + 2 * border) * (self.height + 2 * border) * per_pixel
+        lanes = self.sample_pixels() * per_pixel
         if lanes >= 1 << 32:
             raise ValueError("%d camera samples per pass exceed 2^32: use fewer samples per pixel" % lanes)
         sampler.seed(seeds.stream(self.seed, "camera"), lanes)
         self._sampler, self._per_pixel, self._passes_begun, self._lanes = sampler, per_pixel, 0, lanes
+
+    def sample_pixels(self):
+        """Pixels a pass of one camera sample per pixel covers: the crop window, with the
+        filter's border where the film samples it."""
+        film = self.film
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        return (self.width + 2 * border) * (self.height + 2 * border)
 
     def camera_pass(self):
         """The next pass of camera samples (after :meth:`camera_passes`)."""

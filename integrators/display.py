@@ -151,9 +151,7 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
     ``steps``: the render's step driver (one step per pass), or None."""
     scene, table = frame.scene, view.table
     paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
-    film = frame.film
-    border = film.rfilter().border_size() if film.sample_border() else 0
-    per_pixel, passes = pass_layout(frame.spp, (frame.width + 2 * border) * (frame.height + 2 * border))
+    per_pixel, passes = pass_layout(frame.spp, frame.sample_pixels())
     frame.camera_passes(per_pixel, passes)
     for k in (range(passes) if steps is None else steps.second_stage(passes)):
         cam = frame.camera_pass()

@@ -13,14 +13,17 @@ BYTES_PER_GATHER_LANE = 64
 
 def check_gather_lanes(plugin, frame, gather_samples):
     """Refuse before any work (a Params-style error naming gather_samples) when the eye
-    rays x gather samples of one render exceed 2^32 lanes or half the available memory."""
+    rays x gather samples of one render reach 2^32 lanes, or when one pass of a camera
+    sample per pixel needs more than half the available memory. Returns the passes:
+    (camera samples per pixel and pass, passes), at most ``display.MAX_PASS_LANES``
+    gather lanes a pass where the samples per pixel allow it."""
     from mi_plugins.limits import available_memory
-    film = frame.film
-    border = film.rfilter().border_size() if film.sample_border() else 0
-    lanes = (frame.width + 2 * border) * (frame.height + 2 * border) * frame.spp * int(gather_samples)
-    available = available_memory()
-    if lanes >= 1 << 32 or (available is not None and lanes * BYTES_PER_GATHER_LANE > available // 2):
+    from mi_plugins.integrators.display import pass_layout
+    sr, pixels = int(gather_samples), frame.sample_pixels()
+    lanes, available = pixels * frame.spp * sr, available_memory()
+    if lanes >= 1 << 32 or (available is not None and pixels * sr * BYTES_PER_GATHER_LANE > available // 2):
         raise parameter_error(plugin, [("gather_samples", gather_samples)], (
-            "a count whose %d eye rays x gather samples (%d lanes here) stay below 2^32 lanes and half the "
-            "available memory (%d bytes per lane); use fewer gather_samples or samples per pixel, or render in "
-            "passes" % (lanes // int(gather_samples), lanes, BYTES_PER_GATHER_LANE)))
+            "a count whose %d eye rays x gather samples (%d lanes here) stay below 2^32 lanes, and whose "
+            "lanes of one camera sample per pixel (%d bytes each) fit in half the available memory; use fewer "
+            "gather_samples or samples per pixel" % (lanes // sr, lanes, BYTES_PER_GATHER_LANE)))
+    return pass_layout(frame.spp, pixels * sr)

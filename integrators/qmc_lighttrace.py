@@ -9,7 +9,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc, refinement, support
+from mi_plugins import qmc, refinement, seeds, support
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.neighbours import share_with_neighbours
@@ -59,6 +59,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     the path (light sample, BSDF sample) to the next diffuse surface. ``max_depth`` is
     Mitsuba's: every estimate holds exactly the paths of at most D segments (the table
     read at y holds the particle hits that fit in the depth the camera path has left).
+    The eye rays are traced in passes of at most 2^22 gather lanes (eye rays x SR, about
+    110 bytes each), so the memory stays bounded whatever the samples per pixel.
 
     .. pluginparameters::
 
@@ -308,7 +310,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     # ------------------------------------------------------------------ rendering
     def render_frame(self, frame):
         scene = frame.scene
-        check_gather_lanes(self.plugin, frame, self.gather_samples)
+        per_pixel, passes = check_gather_lanes(self.plugin, frame, self.gather_samples)
         table = self.patch_table(scene)
         if frame.task is not None:         # a distributed render: the particles were traced elsewhere
             self.refinements = []
@@ -323,13 +325,18 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         stored = FlatTables(table, mi.Color3f(*(mi.Float(tables[:, c]) for c in range(3))))
         paths = CameraPaths(scene, table, Surfaces(scene), self.layers, stored, self.max_depth, self.mirror_depth,
                             self.hide_emitters)
-        frame.camera_passes(frame.spp, 1)
-        cam = frame.camera_pass()
-        chain, si, light, gathered = paths.estimate(cam, frame.seed, self.gather_samples)
-        if self.share_neighbors:
-            gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
-        frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered),
-                         coverage=coverage(scene, chain.surface, self.hide_emitters))
+        # passes of a bounded number of gather lanes (their memory: about 110 bytes each)
+        frame.camera_passes(per_pixel, passes)
+        for k in range(passes):
+            cam = frame.camera_pass()
+            seed = frame.seed if k == 0 else seeds.stream(frame.seed, "gather pass", k)
+            chain, si, light, gathered = paths.estimate(cam, seed, self.gather_samples)
+            if self.share_neighbors:
+                gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
+            frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered),
+                             coverage=coverage(scene, chain.surface, self.hide_emitters))
+            if passes > 1:
+                dr.eval(frame.state())
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (

@@ -27,6 +27,7 @@ STREAMS = {
     "solution": 12,     # the direct light of the patches of a view-independent solution
     "display": 13,      # camera paths of the display modes of a solution
     "refine": 14,       # ray_bundle's measurement of the direct light in the children of patches
+    "gather pass": 15,  # render seeds of qmc_lighttrace's camera passes after the first
 }
 
 
