@@ -417,9 +417,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""
         scene = frame.scene
-        film = frame.film
-        border = film.rfilter().border_size() if film.sample_border() else 0
-        passes = display.pass_layout(frame.spp, (frame.width + 2 * border) * (frame.height + 2 * border))[1]
+        passes = display.pass_layout(frame.spp, frame.sample_pixels())[1]
         total, burn_in = self.counts(1)
         steps = self.steps(total, burn_in, total + passes)
         solution = self.solution_for(scene, frame.seed, table, frame.sensor, steps=steps)

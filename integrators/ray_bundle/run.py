@@ -62,9 +62,7 @@ class Run:
         self.gather_only = split is not None and split.mode == "gather"
         limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
-        film = frame.film
-        border = film.rfilter().border_size() if film.sample_border() else 0
-        per_chain = 0 if solve_only else (frame.width + 2 * border) * (frame.height + 2 * border)
+        per_chain = 0 if solve_only else frame.sample_pixels()
         chains = chains or (split.chains if split is not None and split.chains else
                   integ.chains or limits.default_chains(default_chains, sides * table.count, integ.resolution,
                                                         available, orders))
