@@ -93,8 +93,12 @@ class View:
         self.adds_direct = not solution.direct_in_tables
         if mode == "patches":
             self.stored = FlatTables(table, solution.array("tables", lambda: _color(solution.tables)))
-            direct = solution.direct if solution.direct is not None and self.adds_direct else np.zeros((1, 2, 3))
-            self.direct = solution.array("direct", lambda: _color(direct))
+            # the patches' direct light, where the tables do not carry it already (else none:
+            # a gather from a stand-in array read past its end, NaN and 1e35 pixels)
+            if self.adds_direct and solution.direct is None:
+                raise ValueError("display 'patches': the solution has no direct light of its patches "
+                                 "(Solution.complete(scene, table) computes it)")
+            self.direct = solution.array("direct", lambda: _color(solution.direct)) if self.adds_direct else None
         else:
             self.stored = SmoothTables(table, solution.field, solution.array(
                 "vertex tables", lambda: _color(solution.vertex_values("tables"))))
@@ -111,7 +115,8 @@ class View:
         index, readable = self.read.read_table(budget)
         irradiance = dr.select(readable, self.stored(si, index, active & readable), 0.0)
         if self.mode == "patches":
-            irradiance += dr.gather(mi.Color3f, self.direct, patch_side(self.table, si), active)
+            if self.direct is not None:
+                irradiance += dr.gather(mi.Color3f, self.direct, patch_side(self.table, si), active)
             return f * irradiance
         value = f * irradiance
         if self.adds_direct:       # one light and one BSDF sample, MIS

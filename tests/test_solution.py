@@ -140,6 +140,19 @@ def test_clustered_patches_are_exact_in_the_furnace(integrator, display):
     assert out.passed, out
 
 
+@pytest.mark.parametrize("display", ["patches", "smooth", "baked"])
+def test_displays_of_the_bundles_that_carry_the_direct_light(display):
+    """ray_bundle without first_shot (the paper's algorithm) keeps the direct light in its
+    tables, and the displays add none: exact in the furnace, and no pixel read past the
+    end of a stand-in array (the patches display did: NaN and -1e35 pixels)."""
+    cfg = {"type": "ray_bundle", "display": display, "first_shot": False}
+    case = CONSTANT["furnace"]()
+    image = np.array(mi.render(case.scene(cfg), spp=4, seed=budget.seed(22)))
+    assert np.all(np.isfinite(image)) and np.all(image >= 0), image.min()
+    out = analytic.check(case, cfg, spp=8, runs=16, seed=budget.seed(20))
+    assert out.passed, out
+
+
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 def test_a_wrong_solution_fails_the_constant_radiance_check(integrator, monkeypatch):
     """Test of the test: the stored light 10 % too high (the image 2.5 % too bright) fails
