@@ -886,7 +886,9 @@ def test_camera_samples_beyond_a_pass_render_in_passes(monkeypatch):
                         lambda self, cam, seed, sr: used.append(seed) or estimate(self, cam, seed, sr))
     split = noise(8)
     assert len(used) == 8 and len(set(used)) == 8, used       # two renders of 4 passes, every seed its own
-    assert 0.9 < whole[1] / split < 1.1 and whole[0] / split > 1.7, (whole, split)
+    # a noise estimate of 256 grey pixels has a relative SE of 1 / sqrt(512): a ratio of
+    # two, 6.3 %; the bounds are 4 of those (measured 1.04 and 2.05)
+    assert 0.75 < whole[1] / split < 1.33 and whole[0] / split > 1.5, (whole, split)
     # the same seeds trace the same particles: the means differ by the camera noise only
     means = np.mean([one(8, s).mean() for s in (3, 4)])
     monkeypatch.setattr(display, "MAX_PASS_LANES", 1 << 22)
