@@ -115,7 +115,7 @@ class View:
         index, readable = self.read.read_table(budget)
         irradiance = dr.select(readable, self.stored(si, index, active & readable), 0.0)
         if self.mode == "patches":
-            if self.direct is not None:
+            if self.adds_direct:
                 irradiance += dr.gather(mi.Color3f, self.direct, patch_side(self.table, si), active)
             return f * irradiance
         value = f * irradiance

@@ -95,6 +95,7 @@ class MeshTable:
             parts = [mesh_part(*_mesh_arrays(m), m.has_flipped_normals(), h, subdivide, cluster) if _is_mesh(m)
                      else analytic_part(m, h) for m in self.shapes]
         self.parts = parts                 # numpy, per shape (mi_plugins.mesh_parts), for refined()
+        self._derived = {}                 # name -> a value made from the geometry (derived())
         elements = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         patches = np.array([int(part["patch"].max()) + 1 if len(part["patch"]) else 0 for part in parts], np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(patches)[:-1]]).astype(np.uint32)
@@ -228,6 +229,15 @@ class MeshTable:
         facing = dr.dot(si.n, toward) > 0
         back = dr.gather(mi.UInt32, self._back_of, front, ~facing)
         return dr.select(facing, front, back), facing | (back != self.NONE)
+
+    def derived(self, name, make):
+        """The value ``name`` that depends on the table's geometry only (the smooth field,
+        the bounding sphere of the bundles), made by ``make()`` once and kept with the table:
+        a table is not changed once built (a refinement makes a new one), so it never goes
+        stale."""
+        if name not in self._derived:
+            self._derived[name] = make()
+        return self._derived[name]
 
     def patch(self, si):
         """Global patch index of the surface interactions ``si`` (valid hits)."""

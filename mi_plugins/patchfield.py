@@ -321,13 +321,8 @@ class PatchField:
 
 
 def field_of(table):
-    """The :class:`PatchField` of ``table``, made once per table and kept with it: it
-    depends on the patches' geometry only, not on a solution, so every solve and every
-    loaded solution on the same table shares it (on a million triangles it takes seconds,
-    more than the solve of a 1 s budget). Tables are not changed once built (a refinement
-    makes a new one), so the field never goes stale."""
-    field = getattr(table, "_patch_field", None)
-    if field is None:
-        field = table._patch_field = PatchField(table)
-    return field
-
+    """The :class:`PatchField` of ``table``, made once per table and kept with it
+    (``MeshTable.derived``): it depends on the patches' geometry only, not on a solution,
+    so every solve and every loaded solution on the same table shares it (on a million
+    triangles it takes seconds, more than the solve of a 1 s budget)."""
+    return table.derived("patch field", lambda: PatchField(table))

@@ -75,14 +75,14 @@ class ChainLayout:
 
 def bounding_sphere(scene, table):
     """Centre (of the box around all shapes) and radius (farthest patch point, slightly
-    enlarged) of a sphere around all patches; kept on the table, whose geometry sets it."""
-    if getattr(table, "_bounding_sphere", None) is not None:
-        return table._bounding_sphere
-    lo, hi = scene_bounds(scene)
-    center = 0.5 * (lo + hi)
-    radius = float(np.sqrt(np.max(np.sum((table.points_np - center) ** 2, axis=-1))))
-    table._bounding_sphere = (mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6)
-    return table._bounding_sphere
+    enlarged) of a sphere around all patches; kept with the table (``MeshTable.derived``),
+    whose geometry sets it."""
+    def make():
+        lo, hi = scene_bounds(scene)
+        center = 0.5 * (lo + hi)
+        radius = float(np.sqrt(np.max(np.sum((table.points_np - center) ** 2, axis=-1))))
+        return mi.ScalarPoint3f(*center), radius * 1.001 + 1e-6
+    return table.derived("bounding sphere", make)
 
 
 def on_side(v, n, sign):
