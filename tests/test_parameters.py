@@ -130,6 +130,7 @@ TABLE = {
                                      base={"stratify_chains": False}),
         "stratify_chains": BOOL(),      # true with direction_sequence != 'independent': test_rules_between_parameters
         "average_diffuse": BOOL(),
+        "share_diffuse": BOOL(),
         "gather_nee": BOOL(),
         "patch_size": FLOAT(0, lo_open=True, good=[0.05, 1.0]),
         "subdivide": BOOL(),

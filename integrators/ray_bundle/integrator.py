@@ -131,6 +131,18 @@ class RayBundleIntegrator(SolutionIntegrator):
          diffuse patch in all averaged iterations estimate one number; their per-patch
          average replaces the chain's value in the image, made after the iterations (one
          pass per averaged iteration). Unbiased; far less noise. false is the paper's
+     * - share_diffuse
+       - bool
+       - true
+       - every iteration a purely diffuse patch side reflects the mean of what all
+         chains' bundles brought it (it reflects the same radiance in every direction,
+         so each chain's value estimates one number). Unbiased, and where a patch meets
+         few lines per chain and iteration (small patches, few chains, closed rooms) the
+         only way to an estimate that is not skewed: with false the light of k bounces
+         is a product of k mostly-zero values and a render typically reads low (a closed
+         diffuse cube at patch size 0.1: -5.5 %, with it -0.5 %, its burn-in transient).
+         Chains then share their past: the solution has no per-patch error. false keeps
+         the chains independent (with one chain it changes nothing)
      * - gather_nee
        - bool
        - true
@@ -298,6 +310,7 @@ class RayBundleIntegrator(SolutionIntegrator):
                              "stratify_chains=true needs direction_sequence='independent' (the other sequences "
                              "give every chain its own sequence)")
         self.average_diffuse = p.bool("average_diffuse", True)
+        self.share_diffuse = p.bool("share_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
@@ -412,7 +425,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
                 self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.cluster,
                 self.max_depth, self.adaptive, self.point_sources, self.refine, self.refine_threshold,
-                self.min_patch_size, self.max_patches)
+                self.min_patch_size, self.max_patches, self.share_diffuse)
 
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""

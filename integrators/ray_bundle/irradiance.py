@@ -11,7 +11,8 @@ the bundles carry the light of paths of two or more segments (the direct light i
 by the display); without it, the emission too. Orders (a finite depth) are kept apart.
 
 The chains are summed in ``GROUPS`` groups (chain index modulo the groups): the spread of
-the group means gives each patch side's standard error.
+the group means gives each patch side's standard error, where the chains are independent
+(not with ``share_diffuse``, whose chains continue from one shared mean: no error then).
 """
 from dataclasses import dataclass
 
@@ -40,10 +41,10 @@ class IrradianceAverage:
     """The average irradiance of ``layout``'s patch sides (``weight``: solid angle per
     global direction and side)."""
 
-    def __init__(self, layout, weight, rng):
+    def __init__(self, layout, weight, rng, independent=True):
         table = layout.table
         self.layout, self.weight = layout, float(weight)
-        self.groups = max(1, min(GROUPS, layout.chains))
+        self.groups = max(1, min(GROUPS, layout.chains)) if independent else 1
         self.fronts = table.front_count
         back = np.arange(table.count) >= table.front_count
         self.target = mi.UInt32((table.front_of_np * 2 + back).astype(np.uint32))

@@ -72,15 +72,17 @@ class Run:
         if not self.gather_only:
             limits.check(layout, integ.resolution, per_chain, self.group, available)
         self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
-                                   integ.point_sources, children)
+                                   integ.point_sources, children, integ.share_diffuse)
         self.estimator = None if solve_only else ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters,
                                                                             integ.max_depth)
         if self.estimator is not None:
             self.estimator.group = integ.camera_group = self.group
         self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
                         if integ.average_diffuse and not solve_only else None)
+        # (chains that share their diffuse patches are not independent groups: no error)
         self.irradiance = (IrradianceAverage(layout, self.transport.weight, seeds.pcg(layout.slots, frame.seed,
-                                                                                     "patches", 1))
+                                                                                     "patches", 1),
+                                             independent=self.transport.sharing is None)
                            if solve_only else None)
         self.total, self.burn_in = counts if counts is not None else integ.counts(spp)
         self.window = self.total - self.burn_in
@@ -121,7 +123,7 @@ class Run:
                 self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
                 integ.estimate, integ.point_sources, self.uses_sampler, int(film.flags()), frame.width,
                 frame.height, tuple(sorted(frame._blocks)), self.image_iterations, self.solve_only,
-                t.children is not None)
+                t.children is not None, t.sharing is not None)
 
     def __hash__(self):
         return hash(self.key)
