@@ -104,24 +104,12 @@ FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py
          "test_core.py", "test_conformance.py", "test_cli.py")
 
 
-#: the extended tier: tests that take longer than the default run can afford (node ids,
-#: measured seconds on 2 cores as comments), with the coverage cells marked ``extended``
-#: in their file; ``make test`` leaves them out, ``make test-extended`` (pytest
-#: --extended) runs every test
-EXTENDED = os.path.join(REPO, "tests", "data", "extended_tests.txt")
-
-
+#: the extended tier: the coverage cells marked ``extended`` in tests/test_coverage.py
+#: (the same rows in further columns; every row renders in every run); ``make test``
+#: leaves them out, ``make test-extended`` (pytest --extended) runs every test
 def pytest_addoption(parser):
     parser.addoption("--extended", action="store_true", default=False,
-                     help="run the extended tier too (tests/data/extended_tests.txt and tests marked extended)")
-
-
-def extended_ids():
-    try:
-        with open(EXTENDED) as f:
-            return {line.split("#", 1)[0].strip() for line in f if line.split("#", 1)[0].strip()}
-    except OSError:
-        return set()
+                     help="run the extended tier too (the coverage cells marked extended)")
 
 
 def pytest_configure(config):
@@ -142,9 +130,7 @@ def pytest_collection_modifyitems(session, config, items):
     items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST)))
     if config.getoption("--extended") or os.environ.get("MI_PLUGINS_EXTENDED"):
         return
-    listed = extended_ids()
-    left = [item for item in items if item.get_closest_marker("extended") or item.nodeid in listed
-            or item.nodeid.split("[", 1)[0] in listed]
+    left = [item for item in items if item.get_closest_marker("extended")]
     if left:
         config.hook.pytest_deselected(items=left)
         kept = set(map(id, left))
@@ -162,7 +148,7 @@ _file_seconds = {}
 def pytest_runtest_logreport(report):
     """Sums each file's seconds; with MI_PLUGINS_TIMES=FILE also appends every test phase's
     seconds to FILE (node id, phase, seconds, outcome; written once, by the controller
-    under pytest-xdist): the measurements behind tests/data/extended_tests.txt."""
+    under pytest-xdist): the measurements behind tests/data/time_budget.json."""
     name = report.nodeid.split("::", 1)[0]
     _file_seconds[name] = _file_seconds.get(name, 0.0) + float(getattr(report, "duration", 0.0))
     if os.environ.get("MI_PLUGINS_TIMES") and not os.environ.get("PYTEST_XDIST_WORKER"):
