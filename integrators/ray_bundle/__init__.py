@@ -12,6 +12,7 @@ Non-diffuse Global Illumination", sections 5 and 6), one concept per module:
 - :mod:`.estimators`: the image estimates ('gather', 'patch') and their sources;
 - :mod:`.average`: the per-triangle averages of ``average_diffuse``;
 - :mod:`.direct`: ``first_shot``'s direct light of diffuse patches, shared by the chains;
+- :mod:`.sharing`: ``share_diffuse``'s reflected radiance of diffuse patches, shared by the chains;
 - :mod:`.split`: one render split into chain and gathering tasks (distributed rendering).
 """
 from mi_plugins.integrators.ray_bundle.integrator import RayBundleIntegrator  # noqa: F401
