@@ -265,7 +265,7 @@ def test_chains_are_independent_and_averaged():
 def test_chains_share_their_diffuse_patches():
     """share_diffuse (the default): every iteration a purely diffuse patch side reflects
     the mean of what all chains' bundles brought it. Small patches (furnace box, patch
-    size 0.08: 3 888 patch sides, 16 chains of 12 x 12 lines) meet well under one line
+    size 0.08: 7 500 patch sides, 16 chains of 12 x 12 lines) meet well under one line
     per chain and iteration; chains that share pass the furnace with the power rule
     (measured: tolerance 1.5 %, RMSE 0.070). The test of the test: the same chains on
     their own give a skewed, heavy-tailed estimate (most of a chain's patch values zero,
