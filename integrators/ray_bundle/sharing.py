@@ -22,21 +22,21 @@ class DiffuseSharing:
         self.layout = layout
         self.mask = mi.Bool(purely_diffuse(layout.table))
 
-    def share(self, source, parts, sky, tri):
+    def share(self, parts, sky, tri):
         """The lanes' reflected ``parts`` (per order) and ``sky`` (or None), with the lanes
         of diffuse patch sides replaced by the mean over all chains and sides of their
-        patch side. The lanes' values and ``source`` are evaluated in one kernel with
-        the sums (the patch points and BSDF values are traced once); the means are read
-        in the next."""
+        patch side. The lanes' values are evaluated in one kernel with the sums, together
+        with whatever the caller scheduled (the patch points and BSDF values are traced
+        once); the means are read in the next."""
         layout = self.layout
         diffuse = dr.gather(mi.Bool, self.mask, tri)
         values = parts + ([sky] if sky is not None else [])
         sums = [dr.zeros(mi.Color3f, layout.count) for _ in values]
-        dr.schedule(source, values)
+        dr.schedule(values)
         for total, value in zip(sums, values):
             dr.scatter_add(total, value, tri, diffuse, mode=SPLAT_MODE)
         dr.eval()
         scale = 1.0 / float(layout.chains * layout.sides)
         shared = [dr.select(diffuse, dr.gather(mi.Color3f, total, tri, diffuse) * scale, value)
                   for total, value in zip(sums, values)]
-        return source, shared[:len(parts)], (shared[-1] if sky is not None else None)
+        return shared[:len(parts)], (shared[-1] if sky is not None else None)

@@ -362,7 +362,8 @@ class Transport:
         parts = [reflected(inc) for inc in (incoming[:-1] if self.finite else incoming[:1])]
         sky = reflected(from_sky) if self.environment is not None else None   # (none: no memory)
         if self.sharing is not None:
-            S, parts, sky = self.sharing.share(S, parts, sky, tri)
+            dr.schedule(S)          # (evaluated with the shared sums: one kernel traces the patch points)
+            parts, sky = self.sharing.share(parts, sky, tri)
         sky = mi.Color3f(0.0) if sky is None else sky
         if not self.finite:
             return ChainState(new_dirs, [S + parts[0]], parts[0], sky)
