@@ -24,6 +24,10 @@ import pytest
 from mi_plugins import params as params_module
 from mi_plugins.params import ParameterError, Params
 
+#: these tests load plugins and render nothing: the module collects their objects at its end
+#: (``_drop_objects``) instead of after every test (tests/conftest.py, ``_collect_scenes``)
+pytestmark = pytest.mark.renders_nothing
+
 NAN, INF = float("nan"), float("inf")
 README = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "reference.md")
 
