@@ -52,7 +52,7 @@ def particle_phase(integ, scene, table, seed, report=False, rendering=False, giv
         total, done, error = _ranges(integ, scene, table, seed, preview)
     else:
         total, done = _adaptive(integ, scene, table, seed)
-    areas = table.areas_np
+    areas = area_divisor(table)
     integ.paths_used = done
     integ.irradiance = total / max(done, 1) / areas[None, :, None, None]
     integ.reflected_radiance = integ.triangle_radiance = None
@@ -60,9 +60,15 @@ def particle_phase(integ, scene, table, seed, report=False, rendering=False, giv
         reflectance, emission = side_values(scene, table)
         integ.reflected_radiance = integ.irradiance.sum(axis=0) * reflectance
         integ.triangle_radiance = integ.reflected_radiance + emission
-    integ.triangle_areas = areas
+    integ.triangle_areas = table.areas_np
     integ.patch_shapes = np.array([shape.id() for shape in table.shapes])[table.shape_index_np]   # id per patch
     return layers.tables_from(integ.irradiance), error, table
+
+
+def area_divisor(table):
+    """The patch areas to divide deposits by: infinite for patches of no area (degenerate
+    triangles of user meshes, never hit), whose irradiance is then 0, not NaN."""
+    return np.where(table.areas_np > 0, table.areas_np, np.inf)
 
 
 def _ranges(integ, scene, table, seed, preview):
@@ -71,7 +77,7 @@ def _ranges(integ, scene, table, seed, preview):
     n = int(integ.samples)
     groups = GROUPS if n >= GROUPS * MIN_GROUP_PATHS else 1
     bounds = [n * g // groups for g in range(groups + 1)]
-    areas = table.areas_np[None, :, None, None]
+    areas = area_divisor(table)[None, :, None, None]
     total, parts = np.zeros((integ.layers.count, table.count, 2, 3)), []
     for g in range(groups):      # a few ranges of the sequence, each one kernel per chunk
         deposit = trace_range(integ, scene, table, bounds[g], bounds[g + 1] - bounds[g], seed)[0]
@@ -123,7 +129,7 @@ def _refining(integ, scene, table, seed, preview):
         if preview is not None and g + 1 < groups:
             done = bounds[g + 1] - since
             preview(integ.layers.tables_from(total / np.maximum(done, 1)[None, :, None, None]
-                                             / table.areas_np[None, :, None, None]), bounds[g + 1], g + 1, groups)
+                                             / area_divisor(table)[None, :, None, None]), bounds[g + 1], g + 1, groups)
     return total * (n / np.maximum(n - since, 1))[None, :, None, None], n, table
 
 
@@ -137,7 +143,7 @@ def _adaptive(integ, scene, table, seed):
         n = min(integ.batch, integ.max_samples - done)
         deposit, power = trace_range(integ, scene, table, done, n, seed)
         total, emitted, done = total + deposit, emitted + power, done + n
-        current = total.sum(axis=0) / done / (np.pi * areas[:, None, None])
+        current = total.sum(axis=0) / done / (np.pi * area_divisor(table)[:, None, None])
         norm = max(float(np.abs(emitted).mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
         if previous is not None:
             d = np.linalg.norm(current - previous, axis=2)

@@ -30,6 +30,7 @@ import numpy as np
 
 from mi_plugins import tessellation
 from mi_plugins.mesh_parts import MAX_SPLIT, analytic_part, mesh_part, sub_triangles  # noqa: F401
+from mi_plugins.normals import require_consistent_normals
 
 
 class NonMeshShapeError(ValueError):
@@ -92,6 +93,7 @@ class MeshTable:
             h = default_patch_size(scene)
         self.h = float(h)
         if parts is None:
+            require_consistent_normals([m for m in scene.shapes() if _is_mesh(m)], _mesh_arrays, who)
             parts = [mesh_part(*_mesh_arrays(m), m.has_flipped_normals(), h, subdivide, cluster) if _is_mesh(m)
                      else analytic_part(m, h) for m in self.shapes]
         self.parts = parts                 # numpy, per shape (mi_plugins.mesh_parts), for refined()
