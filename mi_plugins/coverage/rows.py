@@ -17,6 +17,7 @@ import numpy as np
 from mi_plugins.conformance.meshes import area, block, diffuse, quad, shape
 from mi_plugins.conformance.scene_library import sky_bitmap
 from mi_plugins.coverage import files
+from mi_plugins.coverage.mesh_rows import mesh_rows
 from mi_plugins.coverage.stage import camera, film, light, look_at, stage, subject_transform
 
 
@@ -521,7 +522,8 @@ NOISY = {"bsdf:dielectric": 4, "bsdf:roughdielectric": 8, "bsdf:null": 2, "bsdf:
 def all_rows():
     """Every row, in table order: {key: Row}."""
     rows = (_bsdf_rows() + _emitter_rows() + _shape_rows() + _sensor_rows() + _film_rows() + _texture_rows()
-            + _medium_rows() + _sampler_rows(())[:5] + _integrator_rows() + _case_rows() + package_rows())
+            + _medium_rows() + _sampler_rows(())[:5] + _integrator_rows() + _case_rows() + package_rows()
+            + mesh_rows(Row))
     table = {}
     for row in rows:
         if row.key in table:
