@@ -14,7 +14,9 @@ as scanned and converted meshes often are) whose vertex normals Mitsuba averaged
 faces has whole regions where the interpolated normal points to the other side of the
 triangle. Measured on a closed box whose triangles were 30 % flipped, ``twosided``
 diffuse: the patches display 20 % dark, the gathered ``qmc_lighttrace`` image 8 % dark,
-silently. Such meshes are refused: :func:`require_consistent_normals`.
+silently. The same holds everywhere on a mesh mirrored by its ``to_world`` (a negative
+scale) whose normals come from its file: Mitsuba reverses the winding's normal, not the
+file's normals (100 % of the area). Such meshes are refused: :func:`require_consistent_normals`.
 """
 import numpy as np
 

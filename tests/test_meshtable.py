@@ -291,32 +291,22 @@ def test_conflict_share_of_one_triangle_is_the_cut_off_area():
     assert conflict_share(verts, faces, np.array([[0, 0, 1.0], [0, 0, -1], [0, 0, -1]])) == pytest.approx(0.75)
 
 
-def _sphere_ply(path, flipped_share, degenerate=0):
-    """A closed sphere-like ply without normals (Mitsuba averages them from the faces), a
-    share of its triangles listed in the other order."""
-    th, ph = np.meshgrid(np.linspace(0.1, np.pi - 0.1, 12), np.linspace(0, 2 * np.pi, 24, endpoint=False), indexing="ij")
-    verts = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
-    faces = []
-    for i in range(11):
-        for j in range(24):
-            a, b, c, d = i * 24 + j, i * 24 + (j + 1) % 24, (i + 1) * 24 + j, (i + 1) * 24 + (j + 1) % 24
-            faces += [(a, c, b), (b, c, d)]
-    faces = np.array(faces + [(k, k, k + 1) for k in range(degenerate)])
-    flip = budget.rng(5).random(len(faces)) < flipped_share
-    faces[flip] = faces[flip][:, ::-1]
-    mesh = mi.Mesh("s", len(verts), len(faces))
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
-    params.update()
-    mesh.write_ply(str(path))
-    return str(path)
+def _sphere_ply(name, flipped_share, degenerate=0):
+    """A closed sphere mesh of shared vertices in a ply without normals (Mitsuba averages
+    them from the faces), a share of its triangles wound inward, ``degenerate`` triangles
+    of no area added."""
+    from mi_plugins import geometry
+    from mi_plugins.coverage.mesh_rows import smooth_sphere
+    mesh = smooth_sphere(flipped_share=flipped_share)
+    extra = np.array([(k, k, k + 1) for k in range(degenerate)], dtype=np.int64).reshape(-1, 3)
+    return geometry.mesh_file(geometry.TriangleMesh(mesh.vertices, np.concatenate([mesh.faces, extra]), mesh.uvs),
+                              "test_" + name)
 
 
 @pytest.mark.parametrize("integrator", ["qmc_lighttrace", "ray_bundle"])
-def test_vertex_normals_against_the_winding_are_refused(tmp_path, integrator):
+def test_vertex_normals_against_the_winding_are_refused(integrator):
     """A mesh with inconsistent winding whose normals Mitsuba averaged: the interpolated
-    normal and the winding point to opposite sides on a quarter of its area (measured on a
+    normal and the winding point to opposite sides on a fifth of its area (measured on a
     box 30 % flipped: the patches display 20 % dark, silently). Refused, naming the shape
     and the remedy; consistent winding, and face_normals=true, load and render."""
     from mi_plugins.support import Unsupported
@@ -324,7 +314,7 @@ def test_vertex_normals_against_the_winding_are_refused(tmp_path, integrator):
     sensor = {"type": "perspective", "to_world": T().look_at([0, 0, 0.5], [0, 0, -1], [0, 1, 0]),
               "film": {"type": "hdrfilm", "width": 4, "height": 4}}
     for share, face_normals, refused in ((0.3, False, True), (0.0, False, False), (0.3, True, False)):
-        ball = {"type": "ply", "filename": _sphere_ply(tmp_path / ("s%g.ply" % share), share), "face_normals": face_normals,
+        ball = {"type": "ply", "filename": _sphere_ply("sphere", share), "face_normals": face_normals,
                 "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse"}}}
         scene = mi.load_dict({"type": "scene", "ball": ball, "lamp": lamp, "sensor": sensor})
         integ = mi.load_dict({"type": integrator, **({"chains": 2, "iterations": 2, "burn_in": 1, "resolution": 8}
@@ -341,11 +331,11 @@ def test_vertex_normals_against_the_winding_are_refused(tmp_path, integrator):
             assert np.isfinite(np.array(mi.render(scene, integrator=integ, spp=1))).all()
 
 
-def test_degenerate_triangles_leave_no_nan_in_the_solution(tmp_path):
+def test_degenerate_triangles_leave_no_nan_in_the_solution():
     """Zero-area triangles (common in scanned meshes) make patches of no area: their
     irradiance is 0, not 0 / 0 (a NaN in the solution, its exports and its vertex fits)."""
     import warnings
-    ball = {"type": "ply", "filename": _sphere_ply(tmp_path / "d.ply", 0.0, degenerate=6),
+    ball = {"type": "ply", "filename": _sphere_ply("degenerate", 0.0, degenerate=6),
             "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse"}}}
     scene = mi.load_dict({"type": "scene", "ball": ball, "lamp": {"type": "point", "position": [0, 0, 0]},
                           "sensor": {"type": "perspective", "to_world": T().look_at([0, 0, 0.5], [0, 0, -1], [0, 1, 0]),
