@@ -136,14 +136,14 @@ def _refining(integ, scene, table, seed, preview):
 def _adaptive(integ, scene, table, seed):
     """Batches of ``batch`` paths until the patch irradiances change by less than
     ``epsilon`` ``patience`` times in a row (or ``max_samples``): (deposits, paths)."""
-    areas = table.areas_np
+    areas, divisor = table.areas_np, np.pi * area_divisor(table)[:, None, None]
     total, emitted = np.zeros((integ.layers.count, table.count, 2, 3)), np.zeros(3)
     done, below, previous = 0, 0, None
     while done < integ.max_samples:
         n = min(integ.batch, integ.max_samples - done)
         deposit, power = trace_range(integ, scene, table, done, n, seed)
         total, emitted, done = total + deposit, emitted + power, done + n
-        current = total.sum(axis=0) / done / (np.pi * area_divisor(table)[:, None, None])
+        current = total.sum(axis=0) / done / divisor
         norm = max(float(np.abs(emitted).mean()) / done / np.pi, 1e-30)  # Phi / pi (= sum Le A of diffuse lights)
         if previous is not None:
             d = np.linalg.norm(current - previous, axis=2)

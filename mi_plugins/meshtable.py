@@ -68,6 +68,15 @@ def _mesh_arrays(mesh):
     return verts, faces, uv
 
 
+def _checked_mesh_part(mesh, h, subdivide, cluster, who):
+    """The patches of ``mesh`` (:func:`mi_plugins.mesh_parts.mesh_part`), after the check
+    that its vertex normals agree with its winding (:mod:`mi_plugins.normals`), both on
+    one read of its arrays."""
+    verts, faces, uv = _mesh_arrays(mesh)
+    require_consistent_normals(mesh, verts, faces, who)
+    return mesh_part(verts, faces, uv, mesh.has_flipped_normals(), h, subdivide, cluster)
+
+
 class MeshTable:
     """All patches of ``scene``'s shapes, numbered 0 .. count-1; ``h``: the patch size
     (default: bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL); ``subdivide``:
@@ -93,9 +102,8 @@ class MeshTable:
             h = default_patch_size(scene)
         self.h = float(h)
         if parts is None:
-            require_consistent_normals([m for m in scene.shapes() if _is_mesh(m)], _mesh_arrays, who)
-            parts = [mesh_part(*_mesh_arrays(m), m.has_flipped_normals(), h, subdivide, cluster) if _is_mesh(m)
-                     else analytic_part(m, h) for m in self.shapes]
+            parts = [_checked_mesh_part(m, h, subdivide, cluster, who) if _is_mesh(m) else analytic_part(m, h)
+                     for m in self.shapes]
         self.parts = parts                 # numpy, per shape (mi_plugins.mesh_parts), for refined()
         self._derived = {}                 # name -> a value made from the geometry (derived())
         elements = np.array([len(part["area"]) for part in parts], dtype=np.int64)

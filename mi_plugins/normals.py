@@ -18,6 +18,7 @@ silently. The same holds everywhere on a mesh mirrored by its ``to_world`` (a ne
 scale) whose normals come from its file: Mitsuba reverses the winding's normal, not the
 file's normals (100 % of the area). Such meshes are refused: :func:`require_consistent_normals`.
 """
+import mitsuba as mi
 import numpy as np
 
 from mi_plugins.support import Unsupported
@@ -60,25 +61,20 @@ def conflict_share(verts, faces, normals):
     return float((share * area).sum() / total)
 
 
-def require_consistent_normals(shapes, arrays, who):
-    """Raise :class:`mi_plugins.support.Unsupported` naming the first mesh of ``shapes``
-    with vertex normals whose interpolated normal points to the other side of its
-    triangles on more than :data:`MAX_CONFLICT` of its area. ``arrays(shape)``: its
-    (vertices, faces) as numpy arrays."""
-    import mitsuba as mi
-    for shape in shapes:
-        if not (isinstance(shape, mi.Mesh) and shape.has_vertex_normals()):
-            continue
-        normals = mi.traverse(shape).get("vertex_normals")
-        if normals is None:
-            continue
-        verts, faces = arrays(shape)[:2]
-        share = conflict_share(verts, faces, np.array(normals, dtype=np.float64).reshape(-1, 3))
-        if share > MAX_CONFLICT:
-            raise Unsupported(
-                who, "vertex normals", "shape '%s' with its vertex normals" % shape.id(),
-                "on %.3g %% of its area the interpolated normal points to the other side of the triangle than its "
-                "winding (at most %g %%: the mark of a mesh with inconsistent winding whose normals were averaged "
-                "from its faces); the patches store light by the winding's side and Mitsuba's BSDFs read it by the "
-                "normal's side, so the image would be wrong" % (100 * share, 100 * MAX_CONFLICT),
-                "give the shape face_normals=true, or make its winding consistent, or render it with path")
+def require_consistent_normals(shape, verts, faces, who):
+    """Raise :class:`mi_plugins.support.Unsupported` if ``shape`` (a mesh whose vertex
+    positions and faces are ``verts``, ``faces``) has vertex normals whose interpolated
+    normal points to the other side of its triangles on more than :data:`MAX_CONFLICT`
+    of its area."""
+    if not shape.has_vertex_normals():
+        return
+    normals = np.array(mi.traverse(shape)["vertex_normals"], dtype=np.float64).reshape(-1, 3)
+    share = conflict_share(verts, faces, normals)
+    if share > MAX_CONFLICT:
+        raise Unsupported(
+            who, "vertex normals", "shape '%s' with its vertex normals" % shape.id(),
+            "on %.3g %% of its area the interpolated normal points to the other side of the triangle than its "
+            "winding (at most %g %%: the mark of a mesh with inconsistent winding whose normals were averaged "
+            "from its faces); the patches store light by the winding's side and Mitsuba's BSDFs read it by the "
+            "normal's side, so the image would be wrong" % (100 * share, 100 * MAX_CONFLICT),
+            "give the shape face_normals=true, or make its winding consistent, or render it with path")
