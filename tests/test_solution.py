@@ -340,7 +340,9 @@ def test_ray_bundle_previews_begin_in_the_burn_in_and_leave_the_solution_as_it_w
     """The first image comes after the first iteration (the burn-in's running average),
     and a solve with previews gives the solution of one without (up to float rounding: the
     burn-in's steps with previews are other kernels, which may round differently in the
-    last bit; a solution that kept the burn-in's iterations is 0.018 off)."""
+    last bit: 2e-7 to 9e-7 relative over 12 seeds here, but the iterations can amplify a
+    last bit, up to 3.5e-4 in the conformance suite's renders; a solution that kept the
+    burn-in's iterations is 0.018 off)."""
     d = mi.cornell_box()
     d["sensor"]["film"].update(width=16, height=16)
     scene = mi.load_dict(d)
@@ -353,4 +355,4 @@ def test_ray_bundle_previews_begin_in_the_burn_in_and_leave_the_solution_as_it_w
     image = np.array(mi.render(scene, integrator=integ, spp=1, seed=budget.seed(11)))
     # (a burn-in extended by the convergence check counts again from 1)
     assert [d for d, _, _ in seen][:8] == list(range(1, 9)) and seen[0][2] > 0, seen
-    assert np.allclose(image, expected, rtol=1e-5, atol=1e-7), np.abs(image - expected).max()
+    assert np.allclose(image, expected, rtol=1e-3, atol=1e-6), (np.abs(image - expected).max(), seen)
