@@ -9,7 +9,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc, refinement, seeds, support
+from mi_plugins import darkness, qmc, refinement, seeds, support
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.neighbours import share_with_neighbours
@@ -137,6 +137,13 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
          into patches of about h by grid cell and normal direction (within about 45
          degrees), so that the patch count follows the surface area, not the triangle
          count (``mi_plugins.mesh_parts``); false: one patch per small triangle
+     * - dark_levels
+       - int
+       - 2
+       - >= 0: split the patches that lie partly in the dark (under an object resting on
+         them, inside a closed object, past a floor or ceiling they run through) this many
+         times along the boundary, so that the solution's displays do not show the lit part
+         darkened by the dark one (``mi_plugins.darkness``); 0: the patches as they are
      * - display
        - string
        - ``'gather'``
@@ -223,6 +230,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.share_neighbors = p.bool("share_neighbors", False)
         self.mirror_depth = p.int("mirror_depth", -1, lo=-1, note="-1: as far as max_depth allows")
         self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
+        self.dark_levels = darkness.read_levels(p)
         self.dims, limit = dimensions(self.sequence_depth), qmc.max_dim(self.sequence)   # lcg, independent: no limit
         if self.dims > limit:
             raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
@@ -261,7 +269,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         return (self.sequence, self.scramble, self.sequence_depth, self.samples, self.epsilon, self.batch,
                 self.patience, self.max_samples, self.max_depth, self.layers.max_hits, self.patch_size,
                 self.subdivide, self.cluster, self.refine, self.refine_threshold, self.min_patch_size,
-                self.max_patches)
+                self.max_patches, self.dark_levels)
 
     def compute_solution(self, scene, table, seed, preview=None, **unused):
         """The particle phase as a view-independent solution (read tables of particle hits
@@ -284,7 +292,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     def patch_table(self, scene):
         """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
         return cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide,
-                            cluster=self.cluster)
+                            cluster=self.cluster, dark_levels=self.dark_levels)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):

@@ -129,5 +129,5 @@ def solution_meta(integ, scene, table, seed, patch_size, **extra):
               for shape, digest, count, summary in zip(table.shapes, fingerprint.shape_digests(scene), counts,
                                                        fingerprint.shape_summary(scene))]
     return dict(integrator=integ.plugin, seed=int(seed), max_depth=int(integ.max_depth), patch_size=float(patch_size),
-                subdivide=bool(integ.subdivide), cluster=bool(integ.cluster),
+                subdivide=bool(integ.subdivide), cluster=bool(integ.cluster), dark_levels=int(integ.dark_levels),
                 fingerprint=fingerprint.scene_fingerprint(scene), shapes=shapes, **extra)

@@ -407,17 +407,22 @@ def _join(parts, keys):
     return joined
 
 
-def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None):
-    """The :class:`MeshTable` of ``scene`` with these settings, built again only when the
-    scene object, its content (``mi_plugins.fingerprint``) or the settings differ from the
-    last call's; ``before_build()`` (e.g. a memory check that predicts the patch count:
-    seconds on a million triangles) is called only when a table is built."""
+def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None, dark_levels=0):
+    """The :class:`MeshTable` of ``scene`` with these settings, its patches split
+    ``dark_levels`` times where they lie partly in the dark (:mod:`mi_plugins.darkness`),
+    built again only when the scene object, its content (``mi_plugins.fingerprint``) or
+    the settings differ from the last call's; ``before_build()`` (e.g. a memory check that
+    predicts the patch count: seconds on a million triangles) is called only when a table
+    is built."""
+    from mi_plugins.darkness import split_in_the_dark
     from mi_plugins.fingerprint import scene_fingerprint
-    key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster))
+    key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster),
+           int(dark_levels))
     if not _LAST or _LAST[0][0] != key:
         if before_build is not None:
             before_build()
-        _LAST[:] = [(key, MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster))]
+        table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
+        _LAST[:] = [(key, split_in_the_dark(table, dark_levels))]
     return _LAST[0][1]
 
 

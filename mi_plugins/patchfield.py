@@ -13,9 +13,15 @@ smooth display and the exported meshes show the field reconstructed from them:
   vertex; where those do not span the plane (the corner of a quad, the inside of a
   cluster), through the patches adjacent to them too (exact for a field linear in
   position on a flat surface, at interior, border and corner vertices alike; the
-  area-weighted mean only where even those do not span it). A vertex value is a fixed linear combination
-  of patch values, so unbiased patch values give unbiased vertex values (no clamping:
-  keeping a sign would bias noisy solutions; a plane extrapolated to a border can make a
+  area-weighted mean only where even those do not span it); then :data:`CONSERVE_ITERATIONS`
+  corrections that move each vertex by the mean residual of its patches (the patch's
+  value minus the average of the field interpolated over it, weighted by the vertex's
+  share of that average): where the field bends within a few patches (near a lamp, in
+  corners, beside a shadow) the planes round the bend off and the interpolated patch
+  averages drift from the patch values (the image mean -2.6 % in a room lit through its
+  ceiling); the corrections bring them back (-0.86 %) and leave a linear field as it
+  is. A vertex value is a fixed linear combination of patch values, so unbiased patch
+  values give unbiased vertex values (no clamping: keeping a sign would bias noisy solutions; a plane extrapolated to a border can make a
   vertex of a noisy solution negative);
 - **interpolation**: a point of a triangle patch takes its barycentric combination of
   the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
@@ -39,6 +45,11 @@ WELD_TOLERANCE = 1e-6
 #: a vertex's least-squares plane needs its normal matrix's smallest eigenvalue above
 #: this share of its trace (else the area-weighted mean)
 MIN_SPREAD = 1e-3
+#: corrections of the vertex values toward the patch averages (each moves a vertex by the
+#: mean residual of its patches): 2 take most of the bias away (room lit through its
+#: ceiling: -2.6 % -> -0.86 %, 4: -0.81 %), more follow the patches' noise (Cornell box,
+#: qmc_lighttrace: RMSE away from the lamp +0.4 % at 2, +11 % at 4)
+CONSERVE_ITERATIONS = 2
 
 
 def _analytic_corners(kind, cells, bounds, frame):
@@ -161,6 +172,12 @@ class PatchField:
         self.vertex_positions[ids] = points          # welded corners coincide
         self._element_incidence = (element_of, ids)
         self._prepare_fit()
+        # the average over each patch of the interpolated field, a weighted sum of its corners'
+        # values: (patch, vertex, weight) per corner, and each vertex's total weight
+        corner_patch, corner_weight = self.element_patch[element_of], el["area"][element_of] \
+            / self.corner_count[element_of] / np.maximum(self.areas[self.element_patch[element_of]], 1e-300)
+        self._averages = (corner_patch, ids, corner_weight,
+                          np.bincount(ids, corner_weight, minlength=self.vertex_count))
         del self._element_incidence            # (only the fit reads it: 16 bytes per corner)
         self.vertex_ids = self.vertex_ids.astype(np.uint32)
         self._jit = None
@@ -284,9 +301,9 @@ class PatchField:
         mean = weight / np.maximum(total[vertex], 1e-300)
         return np.where(plane[vertex], coef, mean), plane
 
-    def fit(self, values):
+    def fit(self, values, iterations=CONSERVE_ITERATIONS):
         """Vertex values (V, C) from patch values (K, C) (or (K, ...): trailing axes are
-        channels)."""
+        channels): the planes, then ``iterations`` corrections (:meth:`conserve`)."""
         values = np.asarray(values, dtype=np.float64)
         shape = values.shape[1:]
         flat = values.reshape(self.count, -1)
@@ -300,7 +317,19 @@ class PatchField:
             for c in range(flat.shape[1]):    # (the channels: a few)
                 beta = [np.bincount(centre, plane[:, j] * flat[other, c], minlength=self.count) for j in range(3)]
                 out[inner, c] = beta[0][at] + local[:, 0] * beta[1][at] + local[:, 1] * beta[2][at]
-        return out.reshape((self.vertex_count,) + shape)
+        return self.conserve(out, flat, iterations).reshape((self.vertex_count,) + shape)
+
+    def conserve(self, out, flat, iterations=CONSERVE_ITERATIONS):
+        """Vertex values ``out`` (V, C) moved toward patch averages equal to the patch
+        values ``flat`` (K, C): ``iterations`` steps, each adding to every vertex the
+        weighted mean residual of the patches around it (see the module docstring)."""
+        patch, vertex, weight, total = self._averages
+        for _ in range(int(iterations)):
+            for c in range(flat.shape[1]):
+                residual = flat[:, c] - np.bincount(patch, weight * out[vertex, c], minlength=self.count)
+                out[:, c] += np.bincount(vertex, weight * residual[patch], minlength=self.vertex_count) \
+                    / np.maximum(total, 1e-300)
+        return out
 
     # ------------------------------------------------------------------ kernels
     def jit(self):

@@ -189,10 +189,11 @@ class Solution:
         solution = cls(arrays["tables"], arrays["areas"], meta, arrays.get("error"), meta.get("direct_in_tables", False),
                        direct=arrays.get("direct"), radiance=arrays.get("radiance"), emission=arrays.get("emission"))
         order = solution.check_scene(scene)
+        from mi_plugins.darkness import split_in_the_dark
         from mi_plugins.refinement import replay
-        table = replay(MeshTable(scene, meta.get("integrator", "solution"), h=meta["patch_size"],
-                                 subdivide=meta["subdivide"], cluster=meta.get("cluster", True)),
-                       meta.get("refinements"))
+        base = MeshTable(scene, meta.get("integrator", "solution"), h=meta["patch_size"],
+                         subdivide=meta["subdivide"], cluster=meta.get("cluster", True))
+        table = replay(split_in_the_dark(base, meta.get("dark_levels", 0)), meta.get("refinements"))
         counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
         for stored, index in zip(meta["shapes"], order):
             if counts[index] != stored["patches"]:

@@ -21,8 +21,12 @@ def test_demo_writes_every_image_with_its_errors(tmp_path):
     assert sum("1 solve," in row for row in rows) == 2, rows
 
 
-def test_a_display_doubles_its_camera_samples_on_one_solve():
+def test_a_display_doubles_its_camera_samples_on_one_solve(monkeypatch):
+    """(a clock that advances 0.1 s per reading: the loop's decisions, not the machine's speed)"""
+    ticks = iter(range(10 ** 6))
+    monkeypatch.setattr(demo.time, "perf_counter", lambda: 0.1 * next(ticks))
     scene = mi.load_dict(demo.cornell(16))
-    image, spp, _, solves = demo.equal_time_display(scene, {"type": "qmc_lighttrace", "display": "smooth",
-                                                            "samples": 20000}, 1.5)
-    assert solves == 1 and spp >= 4 * demo.DISPLAY_SPP and image.mean() > 0
+    image, spp, spent, solves = demo.equal_time_display(scene, {"type": "qmc_lighttrace", "display": "smooth",
+                                                                "samples": 20000}, 2.0)
+    # short renders: the samples double until the next render would pass the 2 s
+    assert solves == 1 and spp >= 16 * demo.DISPLAY_SPP and spent <= 2.0 and image.mean() > 0

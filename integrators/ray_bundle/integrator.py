@@ -16,6 +16,7 @@ from mi_plugins.integrators.ray_bundle import frozen
 from mi_plugins.integrators.ray_bundle import limits
 from mi_plugins.integrators.ray_bundle.limits import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
+from mi_plugins import darkness
 from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters, scene_bounds
 from mi_plugins.params import Params
 from mi_plugins.solution import Solution
@@ -170,6 +171,13 @@ class RayBundleIntegrator(SolutionIntegrator):
          into patches of about h by grid cell and normal direction (within about 45
          degrees), so that the patch count follows the surface area, not the triangle
          count (``mi_plugins.mesh_parts``); false: one patch per small triangle
+     * - dark_levels
+       - int
+       - 2
+       - >= 0: split the patches that lie partly in the dark (under an object resting on
+         them, inside a closed object, past a floor or ceiling they run through) this many
+         times along the boundary, so that the solution's displays do not show the lit part
+         darkened by the dark one (``mi_plugins.darkness``); 0: the patches as they are
      * - hide_emitters
        - bool
        - false
@@ -313,6 +321,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         self.share_diffuse = p.bool("share_diffuse", True)
         self.gather_nee = p.bool("gather_nee", True)
         self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
+        self.dark_levels = darkness.read_levels(p)
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
@@ -395,7 +404,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         check = lambda: limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster),
                                              available_memory())
         return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster,
-                            before_build=check)
+                            before_build=check, dark_levels=self.dark_levels)
 
     def _render_frame(self, frame):
         table = self.patch_table(frame.scene)
@@ -425,7 +434,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
                 self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.cluster,
                 self.max_depth, self.adaptive, self.point_sources, self.refine, self.refine_threshold,
-                self.min_patch_size, self.max_patches, self.share_diffuse)
+                self.min_patch_size, self.max_patches, self.share_diffuse, self.dark_levels)
 
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""

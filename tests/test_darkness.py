@@ -1,0 +1,153 @@
+"""Patches split where they lie partly in the dark (mi_plugins.darkness), and vertex
+values that keep the patch averages (mi_plugins.patchfield)."""
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import budget
+from mi_plugins import darkness
+from mi_plugins.conformance import runner
+from mi_plugins.meshtable import MeshTable
+from mi_plugins.patchfield import PatchField
+
+T = mi.ScalarTransform4f
+
+
+def diffuse(value=0.6, twosided=False):
+    d = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [value] * 3}}
+    return {"type": "twosided", "bsdf": d} if twosided else d
+
+
+def room(light=None, floor_twosided=False, block=True, sky=False, resolution=8):
+    """A floor (2 x 2) with a block resting on it, a back wall that runs 0.5 below the
+    floor, a light above (a quad facing down, or ``light``)."""
+    d = {"type": "scene",
+         "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90),
+                   "bsdf": diffuse(twosided=floor_twosided)},
+         "wall": {"type": "rectangle", "to_world": T().translate([0, 0.5, -1]).scale([1, 1, 1]), "bsdf": diffuse(0.5)},
+         "light": light or {"type": "rectangle", "to_world": T().translate([0, 2, 0]).rotate([1, 0, 0], 90).scale(0.3),
+                            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [10, 10, 10]}}},
+         "sensor": {"type": "perspective", "fov": 60, "to_world": T().look_at(origin=[0, 1.2, 3], target=[0, 0.2, 0],
+                                                                                up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}}}}
+    if block:
+        d["block"] = {"type": "cube", "to_world": T().translate([0, 0.2, 0]).scale(0.2), "bsdf": diffuse(0.4)}
+    if sky:
+        d["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    return d
+
+
+def fractions_by_shape(scene, h=0.1):
+    table = MeshTable(scene, "test", h=h)
+    f = darkness.dark_fractions(scene, table)
+    ids = [s.id() for s in scene.shapes()]
+    owner = np.array(ids)[table.shape_index_np[:table.front_count]]
+    return table, f, owner
+
+
+def test_the_dark_parts_are_found_and_nothing_else():
+    scene = mi.load_dict(room())
+    table, f, owner = fractions_by_shape(scene)
+    centre = np.array([table.elements_np["centre"][table.elements_np["patch"] == k].mean(axis=0)
+                       for k in range(table.front_count)])
+    floor, wall = owner == "floor", owner == "wall"
+    under = floor & (np.abs(centre[:, 0]) < 0.15) & (np.abs(centre[:, 2]) < 0.15)
+    assert under.any() and np.all(f[under, 0] == 1.0)                  # under the block
+    assert np.all(f[floor & (np.abs(centre[:, 0]) > 0.3), 0] == 0.0)    # beside it
+    # the wall below the floor (near its ends it sees past the floor's edges: lit)
+    assert np.all(f[wall & (centre[:, 1] < -0.1) & (np.abs(centre[:, 0]) < 0.5), 0] >= 0.875)
+    assert np.all(f[wall & (centre[:, 1] < -0.25) & (np.abs(centre[:, 0]) < 0.5), 0] == 1.0)
+    assert np.all(f[wall & (centre[:, 1] > 0.1), 0] == 0.0)             # and above it
+    assert np.all(f[:, 1] == 0.0)                                       # no twosided surface: no back sides
+    # the patches on the boundaries straddle it
+    straddle = darkness.straddling(f)
+    assert np.any(wall[straddle]) and np.any(floor[straddle])
+
+
+def test_light_that_reaches_a_point_makes_it_lit():
+    # the sky lights the wall below the floor (rays leave the scene there), the block stays closed
+    _, f, owner = fractions_by_shape(mi.load_dict(room(sky=True)))
+    assert f[owner == "wall", 0].max() < 1.0 and f[owner == "floor", 0].max() == 1.0
+    # a floor that reflects on both sides: the wall below it sees its back (not provably dark)
+    _, f, owner = fractions_by_shape(mi.load_dict(room(floor_twosided=True)))
+    assert f[owner == "wall", 0].max() < 1.0
+    # a point light inside the block lights the floor under it (test of the delta lights)
+    point = {"type": "point", "position": [0.0, 0.2, 0.0], "intensity": {"type": "rgb", "value": [1, 1, 1]}}
+    _, f, owner = fractions_by_shape(mi.load_dict(room(light=point)))
+    assert f[owner == "floor", 0].max() < 1.0
+
+
+def test_splits_narrow_the_straddling_band_and_keep_the_surface():
+    scene = mi.load_dict(room())
+    table = MeshTable(scene, "test", h=0.1)
+    before = len(darkness.straddling(darkness.dark_fractions(scene, table)))
+    split = darkness.split_in_the_dark(table, 2)
+    after = darkness.straddling(darkness.dark_fractions(scene, split))
+    assert split.front_count > table.front_count and abs(split.total_area / table.total_area - 1) < 1e-6
+    # the straddling patches are smaller: their total area falls
+    assert split.areas_np[after].sum() < table.areas_np[darkness.straddling(
+        darkness.dark_fractions(scene, table))].sum() and before > 0
+    assert darkness.split_in_the_dark(table, 0) is table
+    # a scene without dark parts is left as it is
+    open_floor = mi.load_dict(room(block=False, sky=True))
+    plain = MeshTable(open_floor, "test", h=0.25)
+    assert darkness.split_in_the_dark(plain, 2).front_count == plain.front_count
+
+
+def ceiling_lit_room(resolution=16):
+    """A floor, a back wall that runs 1 below the floor and 0.4 above the ceiling, a lamp
+    facing up under the ceiling: the room is lit by the ceiling, and the wall's patches
+    that the floor's and the ceiling's lines cross are partly dark."""
+    return {"type": "scene",
+            "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(2), "bsdf": diffuse(0.6)},
+            "wall": {"type": "rectangle", "to_world": T().translate([0, 1, -2]).scale(2), "bsdf": diffuse(0.5)},
+            "ceiling": {"type": "rectangle", "to_world": T().translate([0, 2.6, 0]).rotate([1, 0, 0], 90).scale(2),
+                        "bsdf": diffuse(0.7)},
+            "lamp": {"type": "rectangle", "to_world": T().translate([0, 2, 0]).rotate([1, 0, 0], -90).scale(0.4),
+                     "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [8, 8, 8]}}},
+            "sensor": {"type": "perspective", "fov": 50,
+                       "to_world": T().look_at(origin=[0, 1.5, 4], target=[0, 0.4, 0], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
+                                "rfilter": {"type": "box"}}}}
+
+
+def _mean_and_se(scene_dict, integrator, spp, runs, seed):
+    images = runner.render_runs(scene_dict, integrator, spp, [budget.seed(seed) * 1000 + r for r in range(runs)])[0]
+    means = images[..., :3].mean(axis=(1, 2, 3))
+    return means.mean(), means.std(ddof=1) / np.sqrt(runs)
+
+
+def test_the_patches_display_is_right_where_the_floor_and_ceiling_cross_the_wall():
+    """qmc_lighttrace's flat patch values (display 'patches') against path: with the dark
+    parts split off the lit ones within the noise; without, the wall's patches that the
+    floor's and the ceiling's lines cross show their lit part too dark (test of the test)."""
+    scene = ceiling_lit_room()
+    ref, ref_se = _mean_and_se(scene, {"type": "path"}, 256, 24, 40)
+    settings = {"type": "qmc_lighttrace", "display": "patches", "samples": 100000}
+    mean, se = _mean_and_se(scene, dict(settings, dark_levels=2), 4, 24, 41)
+    budget.close(mean, ref, np.hypot(se, ref_se), what="patches display with dark_levels=2 / path")
+    bad, bad_se = _mean_and_se(scene, dict(settings, dark_levels=0), 4, 24, 41)
+    assert bad - ref < -4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_vertex_values_keep_the_patch_averages(degree):
+    """A field linear in position is reconstructed as it is; a curved one's interpolated
+    patch averages come closer to the patch values with the corrections."""
+    scene = mi.load_dict({"type": "scene", "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90)}})
+    table = MeshTable(scene, "test", h=0.1)
+    field = PatchField(table)
+    el = table.elements_np
+    centre = np.stack([np.bincount(el["patch"], el["centre"][:, k], minlength=table.front_count)
+                       for k in range(3)], axis=1) / np.bincount(el["patch"], minlength=table.front_count)[:, None]
+    values = (1 + centre[:, 0] + 0.5 * centre[:, 2] + (3 * centre[:, 0] ** 2 if degree == 2 else 0))[:, None]
+    patch, vertex, weight, _ = field._averages
+
+    def residual(vertex_values):
+        return np.abs(values[:, 0] - np.bincount(patch, weight * vertex_values[vertex, 0],
+                                                 minlength=field.count)).mean()
+    planes, kept = field.fit(values, iterations=0), field.fit(values)
+    if degree == 1:
+        assert residual(kept) < 1e-6 and residual(planes) < 1e-6 and np.allclose(kept, planes, atol=1e-6)
+    else:
+        assert residual(kept) < 0.5 * residual(planes), (residual(kept), residual(planes))
