@@ -63,13 +63,13 @@ def _black_backs(scene):
     return mi.Bool(table)
 
 
-def dark_fractions(scene, table, points=POINTS, directions=DIRECTIONS):
-    """numpy (front_count, 2): the share of the points of each front patch's front and back
-    side that are dark (see the module docstring); back sides are measured on the shapes
-    that reflect on both sides (``twosided``), else 0. The same whether ``table`` keeps
-    back-side patches or not."""
+def dark_fractions(table, points=POINTS, directions=DIRECTIONS):
+    """numpy (front_count, 2): the share of the points of each front patch of ``table`` (in
+    its scene) on its front and back side that are dark (see the module docstring); back
+    sides are measured on the shapes that reflect on both sides (``twosided``), else 0.
+    The same whether ``table`` keeps back-side patches or not."""
     from mi_plugins.meshtable import _reflects_on_both_sides
-    count = table.front_count
+    scene, count = table.scene, table.front_count
     two = np.array([_reflects_on_both_sides(shape) for shape in table.shapes], dtype=bool)
     backs = np.flatnonzero(two[table.shape_index_np[:count]])
     patches = np.concatenate([np.arange(count), backs]).astype(np.uint32)
@@ -129,7 +129,7 @@ def split_in_the_dark(table, levels):
         return table
     room = int(MAX_GROWTH * table.front_count)
     for _ in range(int(levels)):
-        split = straddling(dark_fractions(table.scene, table))
+        split = straddling(dark_fractions(table))
         split = split[np.argsort(-table.areas_np[split], kind="stable")][:room // 3]
         if not len(split):
             break

@@ -21,8 +21,9 @@ smooth display and the exported meshes show the field reconstructed from them:
   averages drift from the patch values (the image mean -2.6 % in a room lit through its
   ceiling); the corrections bring them back (-0.86 %) and leave a linear field as it
   is. A vertex value is a fixed linear combination of patch values, so unbiased patch
-  values give unbiased vertex values (no clamping: keeping a sign would bias noisy solutions; a plane extrapolated to a border can make a
-  vertex of a noisy solution negative);
+  values give unbiased vertex values (no clamping: keeping a sign would bias noisy
+  solutions; a plane extrapolated to a border can make a vertex of a noisy solution
+  negative);
 - **interpolation**: a point of a triangle patch takes its barycentric combination of
   the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
 

@@ -39,7 +39,7 @@ def room(light=None, floor_twosided=False, block=True, sky=False, resolution=8):
 
 def fractions_by_shape(scene, h=0.1):
     table = MeshTable(scene, "test", h=h)
-    f = darkness.dark_fractions(scene, table)
+    f = darkness.dark_fractions(table)
     ids = [s.id() for s in scene.shapes()]
     owner = np.array(ids)[table.shape_index_np[:table.front_count]]
     return table, f, owner
@@ -80,13 +80,13 @@ def test_light_that_reaches_a_point_makes_it_lit():
 def test_splits_narrow_the_straddling_band_and_keep_the_surface():
     scene = mi.load_dict(room())
     table = MeshTable(scene, "test", h=0.1)
-    before = len(darkness.straddling(darkness.dark_fractions(scene, table)))
+    before = len(darkness.straddling(darkness.dark_fractions(table)))
     split = darkness.split_in_the_dark(table, 2)
-    after = darkness.straddling(darkness.dark_fractions(scene, split))
+    after = darkness.straddling(darkness.dark_fractions(split))
     assert split.front_count > table.front_count and abs(split.total_area / table.total_area - 1) < 1e-6
     # the straddling patches are smaller: their total area falls
     assert split.areas_np[after].sum() < table.areas_np[darkness.straddling(
-        darkness.dark_fractions(scene, table))].sum() and before > 0
+        darkness.dark_fractions(table))].sum() and before > 0
     assert darkness.split_in_the_dark(table, 0) is table
     # a scene without dark parts is left as it is
     open_floor = mi.load_dict(room(block=False, sky=True))
