@@ -49,10 +49,13 @@ SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray":
             "qmc_smooth": "smooth, 25k paths, 16 spp"}
 UNIT = {"ray_bundle": "it", "ray_bundle_paper": "it", "ray_bundle_smooth": "it", "qmc_smooth": "x 25k"}   # others: spp
 #: the view-independent displays: one solve and a display of it, both grown with the budget
-#: (16 camera samples per iteration or per 25 000 particle paths: a camera sample of the
+#: (by default 16 camera samples per iteration or per 25 000 particle paths: a camera sample of the
 #: display costs a small fraction of either, and the visible light's edges need many)
-SMOOTH = {"ray_bundle_smooth": lambda b: (dict(type="ray_bundle", display="smooth", iterations=b), 16 * b),
-          "qmc_smooth": lambda b: (dict(type="qmc_lighttrace", display="smooth", samples=25000 * b), 16 * b)}
+DISPLAY_SPP = [16]   # camera samples per budget unit (--display-spp)
+SMOOTH = {"ray_bundle_smooth": lambda b: (dict(type="ray_bundle", display="smooth", iterations=b),
+                                          DISPLAY_SPP[0] * b),
+          "qmc_smooth": lambda b: (dict(type="qmc_lighttrace", display="smooth", samples=25000 * b),
+                                   DISPLAY_SPP[0] * b)}
 STEPPED = ("stochastic_ray", "ray_bundle", "ray_bundle_paper", "ray_bundle_smooth")   # iterations, a progress callback
 SCALING = ("ray_bundle", "ray_bundle_paper", "qmc_lighttrace")   # the columns of the scaling table
 
@@ -286,8 +289,13 @@ def main():
                    help="equal time of the ratio columns, seconds (default 1; 0: path's middle budget)")
     p.add_argument("--plot", default=None, help="default docs/real_scenes.png (quick: benchmarks/.cache/)")
     p.add_argument("--write-docs", action="store_true", help="write the tables into docs/real_scenes.md")
+    p.add_argument("--display-spp", type=int, default=16,
+                   help="camera samples of the smooth displays per iteration or per 25 000 particle paths")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
+    DISPLAY_SPP[0] = args.display_spp
+    for name in SMOOTH:
+        SETTINGS[name] = SETTINGS[name].replace("16 spp", "%d spp" % args.display_spp)
     rsm.SCALE = args.scale
     args.plot = args.plot or os.path.join(ROOT, "benchmarks/.cache/real_scenes_quick.png" if args.quick
                                           else "docs/real_scenes.png")

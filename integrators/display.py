@@ -5,8 +5,9 @@ Every camera ray follows mirrors and glass (``camera.specular_chain``) to its vi
 point x. Where x is *purely diffuse* (``qmc_surfaces``), the mode decides what x sends
 toward the eye, with no gather ray:
 
-- ``smooth``: x's direct light by next-event estimation (one light and one BSDF sample,
-  MIS: exact at shadow boundaries) plus rho(x) / pi times the solution's irradiance
+- ``smooth``: x's direct light by next-event estimation (exact at shadow boundaries:
+  one light sample, and near emitting shapes also a BSDF sample, MIS;
+  ``sampling.near_emitters``) plus rho(x) / pi times the solution's irradiance
   interpolated at x from its vertex values (``mi_plugins.patchfield``);
 - ``patches``: rho(x) / pi times the flat irradiance of x's patch side, direct light
   included (the solution as it is, for inspection);
@@ -29,7 +30,7 @@ from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import patch_side
 from mi_plugins.integrators.qmc_surfaces import Surfaces, reflectance_toward, side_of
-from mi_plugins.sampling import direct_light
+from mi_plugins.sampling import direct_light, needs_bsdf_sample
 
 #: the display modes; 'gather' is each integrator's own estimate
 DISPLAYS = ("gather", "smooth", "patches", "baked")
@@ -119,9 +120,10 @@ class View:
                 irradiance += dr.gather(mi.Color3f, self.direct, patch_side(self.table, si), active)
             return f * irradiance
         value = f * irradiance
-        if self.adds_direct:       # one light and one BSDF sample, MIS
+        if self.adds_direct:       # a light sample, and near emitters a BSDF sample too (MIS)
             value += direct_light(scene, si, bsdf, mi.Point2f(rng.next_float32(), rng.next_float32()), active,
-                                  (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())))
+                                  (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())),
+                                  mis=needs_bsdf_sample(scene, si, bsdf))
         return value
 
 

@@ -11,6 +11,9 @@
   light sample, or a light and a BSDF sample combined by MIS (``qmc_lighttrace``'s
   diffuse continuations, ``ray_bundle``'s first shot), through the package's emitter
   sampling (:mod:`mi_plugins.lights`: right on textured area lights).
+- :func:`near_emitters`: the points close enough to an emitting shape for its light
+  samples' weights to be unbounded, where the BSDF sample of :func:`direct_light` is
+  needed (elsewhere the light sample alone has bounded weights and costs one ray).
 """
 import drjit as dr
 import mitsuba as mi
@@ -47,16 +50,59 @@ def hashed_rng(si, salt):
     return mi.PCG32(dr.width(state), state, seq)
 
 
-def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=None):
+#: more emitting shapes than this: :func:`near_emitters` counts every point as near (a test
+#: per shape in every lane would cost more than the BSDF samples it saves)
+MAX_NEAR_SHAPES = 16
+
+
+def near_emitters(scene, p):
+    """Per lane: ``p`` lies within the bounding box of an emitting shape grown on every
+    side by the larger of the box's diagonal and the square root of the shape's area.
+    Beyond that distance r every point of the shape has A / r^2 < 1, so a light sample of
+    it (Le A cos cos / r^2 with uniform area sampling, less with Mitsuba's solid-angle
+    sampling of spheres) has a weight of at most Le times the BSDF's value: no BSDF
+    sample is needed there. Delta emitters (point, spot, directional) count as far: a
+    BSDF sample never finds them. True everywhere where the scene has an environment
+    emitter (its light samples follow its brightness, not the surface's cosine, and
+    fall behind the surface where the bright part does: BSDF samples keep that variance
+    down) or more than ``MAX_NEAR_SHAPES`` emitting shapes. The answer depends on the
+    point alone, never on a sample, so an estimator that takes MIS only where it is true
+    stays unbiased; a box out of date (an emitter moved after a frozen kernel was
+    recorded) changes the noise, never the mean."""
+    emitters = scene.emitters()
+    shapes = [e.get_shape() for e in emitters if e.get_shape() is not None]
+    near = dr.zeros(mi.Bool, dr.width(p))
+    if len(shapes) > MAX_NEAR_SHAPES or any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in emitters):
+        return near | True
+    for shape in shapes:        # a few emitting shapes at most (MAX_NEAR_SHAPES)
+        box = shape.bbox()      # (the area stays a Dr.Jit value: nothing is evaluated inside frozen kernels)
+        grow = dr.maximum(float(dr.norm(box.extents())), dr.sqrt(dr.maximum(shape.surface_area(), 0.0)))
+        low, high = mi.Point3f(box.min) - grow, mi.Point3f(box.max) + grow
+        near |= dr.all((p >= low) & (p <= high))
+    return near
+
+
+def needs_bsdf_sample(scene, si, bsdf):
+    """Per lane: the direct light at ``si`` needs a BSDF sample beside its light sample
+    (MIS in :func:`direct_light`): near an emitting shape (:func:`near_emitters`), or a
+    BSDF with other lobes than diffuse reflection (a glossy lobe's value is not bounded:
+    its highlight of a distant light is found by BSDF samples)."""
+    lobes = mi.UInt32(bsdf.flags()) & mi.UInt32(int(mi.BSDFFlags.All))
+    return near_emitters(scene, si.p) | (lobes != int(mi.BSDFFlags.DiffuseReflection))
+
+
+def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=None, mis=True):
     """Direct illumination reflected at ``si`` toward ``si.wi`` (next-event estimation).
 
     Without ``bsdf_sample``: one emitter sample (:func:`~mi_plugins.lights.sample_emitter_direction`,
     visibility tested), f * Le * G / pdf. With ``bsdf_sample = (u, (u1, u2))``: that
     light sample plus one BSDF sample whose ray is traced to the emission it hits,
     combined by multiple importance sampling (power heuristic), which keeps the
-    variance bounded where emitters are large and close (furnaces, corners). Zero where
-    ``active`` is false. ``ctx``: the BSDF context (default: every lobe; e.g. only the
-    smooth lobes where the delta lobes are estimated otherwise)."""
+    variance bounded where emitters are large and close (furnaces, corners). ``mis``
+    (Bool per lane, e.g. :func:`near_emitters`): the lanes that take the BSDF sample;
+    the others keep the light sample alone, at full weight. Zero where ``active`` is
+    false. ``ctx``: the BSDF context (default: every lobe; e.g. only the smooth lobes
+    where the delta lobes are estimated otherwise)."""
     ctx = mi.BSDFContext() if ctx is None else ctx
     ds, em_weight = sample_emitter_direction(scene, si, light_sample, active)
     active_l = active & (ds.pdf > 0)
@@ -64,7 +110,8 @@ def direct_light(scene, si, bsdf, light_sample, active, bsdf_sample=None, ctx=No
         f = bsdf.eval(ctx, si, si.to_local(ds.d), active_l)
         return dr.select(active_l, mi.Color3f(f) * em_weight, 0.0)
     f, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_l)
-    weight_l = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
+    active = active & mis
+    weight_l = dr.select(ds.delta | ~active, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
     result = dr.select(active_l, mi.Color3f(f) * em_weight * weight_l, 0.0)
 
     bs, bsdf_weight = bsdf.sample(ctx, si, bsdf_sample[0], bsdf_sample[1], active)

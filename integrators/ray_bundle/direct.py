@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
-from mi_plugins.sampling import direct_light
+from mi_plugins.sampling import direct_light, needs_bsdf_sample
 
 
 def diffuse_only(shape):
@@ -33,11 +33,13 @@ def purely_diffuse(table):
 
 
 def direct_light_mis(scene, si, bsdf, rng, active, ctx=None):
-    """Direct light at ``si`` toward ``si.wi``: one light and one BSDF sample, MIS
-    (``ctx``: the lobes to cover, default all)."""
+    """Direct light at ``si`` toward ``si.wi``: one light sample, and where it needs one
+    (near emitting shapes, BSDFs that are not purely diffuse: ``sampling.needs_bsdf_sample``)
+    one BSDF sample too, MIS (``ctx``: the lobes to cover, default all)."""
     light_sample = mi.Point2f(rng.next_float32(), rng.next_float32())
     bsdf_sample = (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()))
-    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample, ctx)
+    return direct_light(scene, si, bsdf, light_sample, active, bsdf_sample, ctx,
+                        mis=needs_bsdf_sample(scene, si, bsdf))
 
 
 @dataclass

@@ -185,7 +185,7 @@ class Transport:
         """The radiance a patch point of patch ``tri`` sends toward ``si.wi`` without the
         bundles' transport: its emission, or with ``first_shot`` the direct light it
         reflects: the shared running mean of purely diffuse patches (updated here, once
-        per iteration), else one light and one BSDF sample of the lane (no rays where
+        per iteration), else the lane's own next-event estimate (no rays where
         ``si.wi`` is behind a surface that neither transmits nor has a back side)."""
         if not self.first_shot:
             return mi.Color3f(si.emitter(self.scene).eval(si))
@@ -310,7 +310,7 @@ class Transport:
     def point_source(self, si, active, rng):
         """The source term the surface point ``si`` sends toward ``si.wi`` (world
         interaction of a hit): its emission, or with ``first_shot`` the direct light it
-        reflects (one light and one BSDF sample, MIS). Evaluated where the radiance
+        reflects (``direct.direct_light_mis``). Evaluated where the radiance
         leaves, not averaged over the patch: the direct light can change by orders of
         magnitude within a patch (a lamp 1 cm under a ceiling, a spot's cone on a large
         plane), and a line leaving the dark part of a patch must not carry the bright
