@@ -326,7 +326,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                                 self._meta(scene, table, frame.seed, self.paths_used))
         else:
             solution = self.solution_for(scene, frame.seed, table, frame.sensor)
-            table = refinement.replay(table, solution.meta.get("refinements"))
+            table = self.table_of(scene, solution)
         if self.display != "gather":
             return self.render_display(frame, solution, table)
         tables = solution.tables.reshape(-1, 3) if solution.tables.size else np.zeros((2, 3))   # (never width 1)

@@ -82,11 +82,17 @@ class SolutionIntegrator(CoreIntegrator):
 
     def solve(self, scene, seed=0):
         """The view-independent solution of ``scene``, complete (geometry, direct light)."""
-        from mi_plugins import refinement
         self.check_scene(scene, None)
-        table = self.patch_table(scene)
-        solution = self.solution_for(scene, seed, table)
-        return solution.complete(scene, refinement.replay(table, solution.meta.get("refinements")))
+        solution = self.solution_for(scene, seed, self.patch_table(scene))
+        return solution.complete(scene, self.table_of(scene, solution))
+
+    def table_of(self, scene, solution):
+        """The patches ``solution`` is numbered by: its recorded dark splits (this process's
+        own where they agree; a loaded solution's may differ: ``darkness.with_splits``)
+        and its refinements."""
+        from mi_plugins import darkness, refinement
+        table = darkness.with_splits(self.patch_table(scene), solution.meta.get("dark_splits"))
+        return refinement.replay(table, solution.meta.get("refinements"))
 
     def use_solution(self, solution):
         """Render from ``solution`` (e.g. ``Solution.load(path, scene)``): every later render
@@ -130,4 +136,5 @@ def solution_meta(integ, scene, table, seed, patch_size, **extra):
                                                        fingerprint.shape_summary(scene))]
     return dict(integrator=integ.plugin, seed=int(seed), max_depth=int(integ.max_depth), patch_size=float(patch_size),
                 subdivide=bool(integ.subdivide), cluster=bool(integ.cluster), dark_levels=int(integ.dark_levels),
+                dark_splits=list(table.dark_rounds),
                 fingerprint=fingerprint.scene_fingerprint(scene), shapes=shapes, **extra)

@@ -124,18 +124,57 @@ def split_in_the_dark(table, levels):
     """``table`` with the patches that straddle a dark boundary split, ``levels`` times
     (each time the straddling children of the last split are measured again; the largest
     first where they would add more than ``MAX_GROWTH`` times the table's patches); tables
-    of more than ``MAX_ELEMENTS`` elements are kept as they are."""
+    of more than ``MAX_ELEMENTS`` elements are kept as they are. The result records its
+    rounds (``dark_rounds``: the split patches of each, in the numbering of the table they
+    were chosen on), which a solution saves: a point where a ray grazes two touching
+    surfaces can be judged otherwise by another build of Mitsuba's acceleration structure
+    (another process), so a loaded solution replays the recorded splits
+    (:func:`replay_dark`) instead of measuring again."""
     if table.element_count > MAX_ELEMENTS:
         return table
-    room = int(MAX_GROWTH * table.front_count)
+    base, room = table, int(MAX_GROWTH * table.front_count)
     for _ in range(int(levels)):
         split = straddling(dark_fractions(table))
         split = split[np.argsort(-table.areas_np[split], kind="stable")][:room // 3]
         if not len(split):
             break
         before = table.front_count
-        table = table.refined(np.sort(split))[0]
+        table = _split(table, np.sort(split))
         room -= table.front_count - before
+    table.dark_base = base
+    return table
+
+
+def replay_dark(table, rounds):
+    """``table`` (unsplit) split by the recorded ``rounds`` of :func:`split_in_the_dark`;
+    the last result is kept for the next call."""
+    key = (id(table), repr(rounds))
+    if not _REPLAYED or _REPLAYED[0][0] != key:
+        split = table
+        for patches in rounds:
+            split = _split(split, np.asarray(patches, np.int64))
+        split.dark_base = table
+        _REPLAYED[:] = [(key, split, table)]          # (the base held: its id stays unique)
+    return _REPLAYED[0][1]
+
+
+def with_splits(table, rounds):
+    """The table of ``table``'s scene and settings whose dark splits are ``rounds`` (a
+    solution's record; None: ``table`` as it is): ``table`` itself where they are its
+    own, else the record replayed on its unsplit table."""
+    if rounds is None or [list(r) for r in rounds] == table.dark_rounds:
+        return table
+    return replay_dark(table.dark_base if table.dark_base is not None else table, rounds)
+
+
+_REPLAYED = []
+
+
+def _split(table, split):
+    """``table.refined(split)``, recording the round."""
+    rounds = table.dark_rounds + [[int(i) for i in split]]
+    table = table.refined(split)[0]
+    table.dark_rounds = rounds
     return table
 
 

@@ -105,6 +105,8 @@ class MeshTable:
             parts = [_checked_mesh_part(m, h, subdivide, cluster, who) if _is_mesh(m) else analytic_part(m, h)
                      for m in self.shapes]
         self.parts = parts                 # numpy, per shape (mi_plugins.mesh_parts), for refined()
+        self.dark_rounds = []              # the dark splits that made it (mi_plugins.darkness), kept by refined()
+        self.dark_base = None              # the table before them (None: this one)
         self._derived = {}                 # name -> a value made from the geometry (derived())
         elements = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         patches = np.array([int(part["patch"].max()) + 1 if len(part["patch"]) else 0 for part in parts], np.int64)
@@ -301,6 +303,7 @@ class MeshTable:
         parts = [refine(part, split[owner[split] == k] - int(self.face_offsets[k]), self.h) if np.any(owner[split] == k)
                  else part for k, part in enumerate(self.parts)]
         table = MeshTable(self.scene, self.who, h=self.h, back_sides=self.back_sides, parts=parts)
+        table.dark_rounds = list(self.dark_rounds)
         origin = np.zeros(table.front_count, np.int64)
         for k, (part, before) in enumerate(zip(parts, self.parts)):
             leaf = part["child"] < 0

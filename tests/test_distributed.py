@@ -86,7 +86,7 @@ def test_several_shapes_keep_their_patches_on_every_worker(name, clients, tmp_pa
     """The Bekaert box (two meshes, L = 1): the first phase's per-patch sums come from
     workers that loaded the scene separately; they number the patches alike (sequential
     loading), so 1 and 2 workers agree (up to the film's float splats for
-    qmc_lighttrace) and the image is exact. Test of the test: results carrying two shape orders are refused."""
+    qmc_lighttrace) and the image is exact. Test of the test: results carrying two patch numberings are refused."""
     path = scene_copy(str(tmp_path), INTEGRATORS[name], source=os.path.join(REPO, "configs", "bekaert_box.xml"))
     one, two = (distributed.render(path, 2, client=clients[n], seed=3, tasks=4, progress=False).image
                 for n in (1, 2))
@@ -94,8 +94,13 @@ def test_several_shapes_keep_their_patches_on_every_worker(name, clients, tmp_pa
     np.testing.assert_allclose(one, two, rtol=1e-5 if name == "qmc_lighttrace" else 1e-4, atol=1e-7)
     assert abs(one.mean() - 1.0) < 0.03, one.mean()
     tasks = plan.particle_tasks(10, 2, 0)
-    with pytest.raises(ValueError, match="different orders"):
+    with pytest.raises(ValueError, match="numbered the patches differently"):
         plan.merge_particles({0: (np.zeros(3), "a"), 1: (np.zeros(3), "b")}, tasks)
+    # a second-phase worker that numbers the patches otherwise (other dark splits) refuses too
+    scene = mi.load_file(path)
+    plan._check_numbering(scene, plan.numbering(scene))
+    with pytest.raises(ValueError, match="numbers the patches otherwise"):
+        plan._check_numbering(scene, plan.numbering(scene) + "x")
 
 
 def test_passes_equal_the_single_process_render(clients, scenes):

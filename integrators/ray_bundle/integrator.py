@@ -445,8 +445,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         solution = self.solution_for(scene, frame.seed, table, frame.sensor, steps=steps)
         if self.progress.interrupted:
             return
-        self.render_display(frame, solution, refinement.replay(table, solution.meta.get("refinements")),
-                            None if self.refine else steps)
+        self.render_display(frame, solution, self.table_of(scene, solution), None if self.refine else steps)
 
     def compute_solution(self, scene, table, seed, preview=None, sensor=None, steps=None):
         """The bundles' irradiance per patch side, averaged over chains and the averaged

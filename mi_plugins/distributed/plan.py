@@ -18,6 +18,7 @@ engine (the Dask runner in :mod:`.dask_engine` only submits and collects them).
 The worker functions (:func:`run_pass`, :func:`run_particles`) take the shipped scene
 (:mod:`.scene_bundle`) and keep the loaded scene per process for the next task.
 """
+import hashlib
 import pickle
 from dataclasses import dataclass
 
@@ -82,12 +83,13 @@ def phases(integrator, scene, spp, tasks, seed):
     if split == "particles":
         paths = integrator.samples
         first = Phase("particles", particle_tasks(paths, tasks, seed), run_particles,
-                      lambda results, ranges: (merge_particles(results, ranges), paths))
+                      lambda results, ranges: (merge_particles(results, ranges), paths, agreed(results)))
         return first, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
     if split == "chains":
         chains = integrator.chain_count()
         groups = min(tasks, max(1, chains // MIN_CHAINS))
-        first = Phase("chains", chain_tasks(chains, spp, groups, seed), run_chains, merge_chains)
+        first = Phase("chains", chain_tasks(chains, spp, groups, seed), run_chains,
+                      lambda results, groups: merge_chains(results, groups) + (agreed(results),))
         total = integrator.final_passes(spp)
         return first, Phase("gathering", gathering_tasks(total, tasks, seed), run_gathering), spp / max(total, 1)
     return None, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
@@ -146,13 +148,13 @@ def merge_passes(results, tasks):
 
 
 def merge_particles(results, tasks):
-    """Sum of the ranges' deposits in range order (results: (deposits, shape order))."""
+    """Sum of the ranges' deposits in range order (results: (deposits, patch numbering))."""
     return merge_sums({k: (v,) for k, v in check_order(results, tasks).items()}, tasks)[0]
 
 
 def merge_chains(results, tasks):
     """Sums and counts of the chain groups added in task order (results: ((sums, counts),
-    shape order))."""
+    patch numbering))."""
     return merge_sums(check_order(results, tasks), tasks)
 
 
@@ -201,9 +203,32 @@ def check_order(results, tasks):
     numbered the patches differently."""
     orders = {results[t.index][1] for t in tasks}
     if len(orders) > 1:
-        raise ValueError("distributed render: the workers loaded the scene's shapes in different orders (%d "
-                         "orders); the per-patch sums cannot be added" % len(orders))
+        raise ValueError("distributed render: the workers numbered the patches differently (%d numberings: the "
+                         "scene's shapes loaded in another order, or other patches split in the dark); the "
+                         "per-patch sums cannot be added" % len(orders))
     return {t.index: results[t.index][0] for t in tasks}
+
+
+def agreed(results):
+    """The patch numbering the first phase's workers agreed on (:func:`check_order`)."""
+    return next(iter(results.values()))[1]
+
+
+def numbering(scene):
+    """The numbering of the patches of ``scene``'s integrator: the shapes' order
+    (:func:`shape_order`) and the patches split in the dark (``mi_plugins.darkness``:
+    a point where a ray grazes two touching surfaces may be judged otherwise by another
+    process's acceleration structure)."""
+    import json
+    table = scene.integrator().patch_table(scene)
+    return shape_order(scene) + " " + hashlib.sha1(json.dumps(table.dark_rounds).encode()).hexdigest()[:16]
+
+
+def _check_numbering(scene, expected):
+    """ValueError where this worker numbers the patches otherwise than the first phase."""
+    if numbering(scene) != expected:
+        raise ValueError("distributed render: this worker numbers the patches otherwise than the workers of the "
+                         "first phase (other patches split in the dark); the sums cannot be read here")
 
 
 def run_pass(shipped, params, variant, task, threads=None, particles=None):
@@ -213,6 +238,7 @@ def run_pass(shipped, params, variant, task, threads=None, particles=None):
     integrator = scene.integrator()
     try:
         if particles is not None:
+            _check_numbering(scene, particles[2])
             return np.array(integrator.render_with_particles(scene, particles[0], particles[1], task.spp, task.seed),
                             dtype=np.float64)
         return np.array(mi.render(scene, spp=task.spp, seed=task.seed), dtype=np.float64)
@@ -237,7 +263,7 @@ def run_chains(shipped, params, variant, task, threads=None):
     """ray_bundle: the average sums and counts of one group of chains."""
     scene = _scene(shipped, params, variant, threads)
     try:
-        return scene.integrator().chain_averages(scene, task.seed, task.spp, task.count), shape_order(scene)
+        return scene.integrator().chain_averages(scene, task.seed, task.spp, task.count), numbering(scene)
     except Exception as error:
         raise _portable(error) from None
 
@@ -246,6 +272,7 @@ def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
     scene = _scene(shipped, params, variant, threads)
     try:
+        _check_numbering(scene, average[2])
         return scene.integrator().gather_from(scene, average[0], average[1], task.spp, task.seed)
     except Exception as error:
         raise _portable(error) from None
@@ -254,7 +281,7 @@ def run_gathering(shipped, params, variant, task, threads=None, average=None):
 def run_particles(shipped, params, variant, task, threads=None):
     """The deposits of one range of qmc_lighttrace's particle phase."""
     scene = _scene(shipped, params, variant, threads)
-    return scene.integrator().trace_particles(scene, task.start, task.count, task.seed), shape_order(scene)
+    return scene.integrator().trace_particles(scene, task.start, task.count, task.seed), numbering(scene)
 
 
 def keeps_solution(integrator):
