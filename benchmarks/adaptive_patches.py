@@ -6,11 +6,13 @@ The *patch bias* is the error of the flat patch values themselves: `qmc_lighttra
 unbiased averages) shown with `display='patches'` (rho / pi times each patch side's
 irradiance, direct light included), two seeds, its noise removed, against a cached long
 `path` reference (real_scene_meshes.py): RMS per pixel and channel, full image and away
-from the visible light. Three layouts per scene: the default uniform patches, `refine`
-(adaptive subdivision from the default patches), and uniform patches of the size that
-gives the refined layout's patch count. Writes docs/adaptive_patches.png: the patch
-layouts (false colours) and the signed error images of the three. Run from the
-repository root (about a minute):
+from the visible light. Per scene: uniform patches at four sizes (`dark_levels` 0; a
+log-log fit of the bias against the patch count), the defaults (the dark splits), and
+`refine` (adaptive subdivision) on top of them; every layout's bias is compared with the
+uniform fit at its own patch count. Writes docs/adaptive_patches.png: the patch layouts
+(false colours, split patches orange) and the signed error images of the uniform default,
+the refined and the finest uniform layout. Run from the
+repository root (about three minutes):
 
     python3 benchmarks/adaptive_patches.py [--scenes cornell_closed,cornell] [--samples 2000000]
 """
@@ -37,6 +39,8 @@ ROOT = os.path.dirname(HERE)
 PNG = os.path.join(ROOT, "docs", "adaptive_patches.png")
 RES = 128
 SEEDS = (0, 1)
+#: the uniform layouts' patch sizes, as fractions of the default
+UNIFORM_SIZES = (1.0, 0.85, 0.7, 0.55)
 ERROR_SCALE = 0.05      # signed error shown at full colour (red: too bright, blue: too dark)
 
 
@@ -103,7 +107,7 @@ def main():
     base = dict(type="qmc_lighttrace", display="patches", samples=args.samples)
     extra = {k: float(v) for k, v in (kv.split("=") for kv in args.refine.split(",") if kv)}
     print("| scene | layout | patches | patch bias (RMS, full image) | away from the light | image mean (away) | "
-          "/ uniform at the same count |")
+          "/ uniform fit at the same count (full / away) |")
     print("|---|---|---|---|---|---|---|")
     for name in args.scenes.split(","):
         d, _ = rsm.scene_dict(name, RES)
@@ -112,21 +116,27 @@ def main():
         keep = rsm.away_from_light(ref)
         default_size = mi.load_dict(base).patch_size_for(scene)
         plain = dict(base, dark_levels=0)
-        uniform = measure(scene, plain, ref, ref_var, keep, args.spp)
+        # uniform patches at several sizes: the patch bias against the patch count (log-log
+        # least squares), read at the other layouts' counts
+        curve = [(f * default_size, measure(scene, dict(plain, patch_size=f * default_size), ref, ref_var, keep,
+                                            args.spp)) for f in UNIFORM_SIZES]
+        # (a bias estimated at 0, below the noise it is read under, is left out of the fit)
+        fits = [np.polyfit(*np.log([(m[0], m[c]) for _, m in curve if m[c] > 0]).T, 1) for c in (1, 2)]
+        at = lambda count, c: math.exp(np.polyval(fits[c - 1], math.log(count)))
         dark = measure(scene, base, ref, ref_var, keep, args.spp)
         refined = measure(scene, dict(base, refine=True, **extra), ref, ref_var, keep, args.spp)
-        size = default_size * math.sqrt(uniform[0] / refined[0])
-        matched = measure(scene, dict(plain, patch_size=size), ref, ref_var, keep, args.spp)
-        for label, m in (("uniform (default size %.4f, dark_levels 0)" % default_size, uniform),
-                         ("dark splits (the defaults)", dark),
-                         ("dark splits + refine %s" % args.refine, refined),
-                         ("uniform, size %.4f (the refined count)" % size, matched)):
-            ratio = "%.2f / %.2f" % (m[1] / matched[1], m[2] / matched[2]) if m in (dark, refined) else ""
+        rows_out = [("uniform, size %.4f (dark_levels 0)" % size, m) for size, m in curve] + \
+            [("dark splits (the defaults)", dark), ("dark splits + refine %s" % args.refine, refined)]
+        for label, m in rows_out:
+            ratio = "%.2f / %.2f" % (m[1] / at(m[0], 1), m[2] / at(m[0], 2))
             print("| %s | %s | %d | %.5f | %.5f | %.4f | %s |" % (name, label, m[0], m[1], m[2], m[5], ratio),
                   flush=True)
-        panels.append([layout_image(*m[4]) for m in (uniform, refined, matched)] +
-                      [error_image(m[3], ref) for m in (uniform, refined, matched)])
-    # one row of layouts and one of errors per scene: uniform, refined, uniform at the refined count
+        print("| %s | uniform fit: bias ~ patches^%.2f (full image), ^%.2f (away) | | | | | |"
+              % (name, fits[0][0], fits[1][0]))
+        finest = curve[-1][1]
+        panels.append([layout_image(*m[4]) for m in (curve[0][1], refined, finest)] +
+                      [error_image(m[3], ref) for m in (curve[0][1], refined, finest)])
+    # one row of layouts and one of errors per scene
     gap = np.ones((RES, 4, 3))
     rows = []
     for p in panels:
@@ -134,8 +144,8 @@ def main():
         rows.append(np.concatenate(sum(([im, gap] for im in p[3:]), [])[:-1], axis=1))
     sheet = np.concatenate(sum(([r, np.ones((4, r.shape[1], 3))] for r in rows), [])[:-1], axis=0)
     mi.util.write_bitmap(args.png, mi.TensorXf(sheet.astype(np.float32)), write_async=False)
-    print("wrote %s (per scene: patch layouts, then signed errors x %.0f: uniform | refine | uniform at the "
-          "refined count)" % (os.path.relpath(args.png, ROOT), 1 / ERROR_SCALE))
+    print("wrote %s (per scene: patch layouts, then signed errors x %.0f: uniform at the default size | dark "
+          "splits + refine | uniform at the smallest size)" % (os.path.relpath(args.png, ROOT), 1 / ERROR_SCALE))
 
 
 if __name__ == "__main__":
