@@ -139,7 +139,7 @@ def split_in_the_dark(table, levels):
         if not len(split):
             break
         before = table.front_count
-        table = _split(table, np.sort(split))
+        table = split_recorded(table, np.sort(split))
         room -= table.front_count - before
     table.dark_base = base
     return table
@@ -152,7 +152,7 @@ def replay_dark(table, rounds):
     if not _REPLAYED or _REPLAYED[0][0] != key:
         split = table
         for patches in rounds:
-            split = _split(split, np.asarray(patches, np.int64))
+            split = split_recorded(split, np.asarray(patches, np.int64))
         split.dark_base = table
         _REPLAYED[:] = [(key, split, table)]          # (the base held: its id stays unique)
     return _REPLAYED[0][1]
@@ -170,8 +170,8 @@ def with_splits(table, rounds):
 _REPLAYED = []
 
 
-def _split(table, split):
-    """``table.refined(split)``, recording the round."""
+def split_recorded(table, split):
+    """``table.refined(split)``, the round recorded in its ``dark_rounds``."""
     rounds = table.dark_rounds + [[int(i) for i in split]]
     table = table.refined(split)[0]
     table.dark_rounds = rounds

@@ -101,9 +101,10 @@ class RayBundleIntegrator(SolutionIntegrator):
        - bool
        - true
        - direct light by next-event estimation (one light sample, plus one BSDF sample,
-         MIS, near emitting shapes and on BSDFs not purely diffuse) at patch points, line hits (``point_sources``) and camera samples; the bundles
-         carry only the reflected radiance L - Le; purely diffuse patches share one
-         running mean per side across the chains. Unbiased; far less noisy where direct
+         MIS, near emitting shapes and on BSDFs not purely diffuse) at patch points,
+         line hits (``point_sources``) and camera samples; the bundles carry only the
+         reflected radiance L - Le; purely diffuse patches share one running mean per
+         side across the chains. Unbiased; far less noisy where direct
          light dominates. false is the paper's algorithm
      * - estimate
        - string
@@ -199,8 +200,8 @@ class RayBundleIntegrator(SolutionIntegrator):
        - true
        - the source term a line carries (the direct light with ``first_shot``, else the
          emission) evaluated where the line leaves the surface (one light sample per
-         hit, and a BSDF sample where it is needed): exact where it varies within a patch (shadows, a lamp 1 cm
-         under a ceiling: +92 % with false; spots on large planes: -4 %). false: the
+         hit, and a BSDF sample where it is needed): exact where it varies within a
+         patch (shadows, a lamp 1 cm under a ceiling: +92 % with false; spots on large planes: -4 %). false: the
          patch's value, the shared running mean of its direct light: far less noise
          (RMSE halved in the furnace sphere mesh), exact only where the radiance is
          constant per patch (the analytic constant-radiance scenes)
