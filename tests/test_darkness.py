@@ -173,8 +173,11 @@ def test_a_loaded_solution_replays_the_recorded_dark_splits(tmp_path, monkeypatc
     monkeypatch.setattr(darkness, "dark_fractions", lambda table, *a: np.zeros((table.front_count, 2)))
     scene = mi.load_dict(room(), parallel=False)
     again = Solution.load(path, scene)
-    assert again.patches == solution.patches and np.allclose(again.tables, solution.tables, rtol=1e-6, atol=0), \
-        np.abs(again.tables - solution.tables).max()
+    # per shape (a load follows the scene's shape order, which may differ from the solve's)
+    from test_refinement import _tables_by_shape
+    mine, theirs = _tables_by_shape(solution), _tables_by_shape(again)
+    assert again.patches == solution.patches and mine.keys() == theirs.keys()
+    assert all(np.array_equal(mine[k], theirs[k]) for k in mine)
     # rendered from the loaded solution: on its recorded patches, the same image
     integ = mi.load_dict(settings)
     integ.use_solution(again)
