@@ -8,12 +8,54 @@ integrators evaluate their own estimate, collecting the emission seen on the way
 """
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 #: camera paths through specular chains play Russian roulette after this many bounces
 #: (survival probability min(max throughput, 0.95), so perfect mirrors terminate too)
 RR_DEPTH = 5
 #: "no limit" of the chains' depth counters
 UNBOUNDED = 1 << 30
+
+
+def grid(film):
+    """(crop size, border, grid size) of a film's camera samples: the crop window plus
+    the reconstruction filter's border where the film samples it."""
+    size = film.crop_size()
+    border = film.rfilter().border_size() if film.sample_border() else 0
+    return size, border, size + 2 * border
+
+
+def pixels_seeing_emission(frame, shifts):
+    """numpy bool (grid pixels, row by row; :func:`grid`): the pixels where a camera ray
+    through one of ``shifts`` (positions in the pixel) sees emission at its first hit, and
+    their neighbours (a lamp narrower than the shifts' spacing, the filter's reach); None
+    for a sensor whose rays ignore the film position."""
+    film, sensor = frame.film, frame.sensor
+    size, border, full = grid(film)
+    k = len(shifts)
+    lane = dr.arange(mi.UInt32, int(dr.prod(full)) * k)
+    pixel, j = lane // k, lane % k
+    py = pixel // full[0]
+    px = pixel - py * full[0]
+    at = mi.Vector2f(dr.gather(mi.Float, mi.Float([x for x, _ in shifts]), j),
+                     dr.gather(mi.Float, mi.Float([y for _, y in shifts]), j))
+    pos_f = mi.Vector2f(mi.Int32(px) - border + film.crop_offset()[0], mi.Int32(py) - border + film.crop_offset()[1]) + at
+    scale = dr.rcp(mi.ScalarVector2f(size))
+    ray, _ = sensor.sample_ray_differential(sensor.shutter_open(), 0.0,
+                                            dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale),
+                                            mi.Point2f(0.5))
+    seen = np.array(dr.any(seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
+                           != 0.0), dtype=bool)
+    if seen.size != int(full[0]) * int(full[1]) * k:
+        return None                 # a sensor whose rays ignore the film position
+    seen = seen.reshape(int(full[1]), int(full[0]), k).any(axis=2)
+    grown = seen.copy()
+    grown[1:] |= seen[:-1]
+    grown[:-1] |= seen[1:]
+    wide = grown.copy()
+    wide[:, 1:] |= grown[:, :-1]
+    wide[:, :-1] |= grown[:, 1:]
+    return wide.ravel()
 
 
 class CameraPass:
@@ -27,9 +69,7 @@ class CameraPass:
 
     def __init__(self, frame, sampler, per_pixel):
         film, sensor = frame.film, frame.sensor
-        size = film.crop_size()
-        border = film.rfilter().border_size() if film.sample_border() else 0
-        full = size + 2 * border
+        size, border, full = grid(film)
         idx = dr.arange(mi.UInt32, dr.prod(full) * per_pixel) // dr.opaque(mi.UInt32, per_pixel)
         py = idx // full[0]
         px = idx - py * full[0]
@@ -47,6 +87,7 @@ class CameraPass:
         # (Mitsuba 3.9.1: their sample_ray raises "not implemented"), as Mitsuba's path calls
         ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, offset), aperture)
         count = dr.width(idx)
+        self.film_rays = dr.width(ray.o) == count and dr.width(ray.d) == count
         if dr.width(ray.o) != count or dr.width(ray.d) != count or dr.width(weight) != count:
             # a sensor whose rays ignore the film sample (radiancemeter: one fixed ray) gives
             # one lane: widened, so that every camera sample draws its own numbers downstream
@@ -56,18 +97,35 @@ class CameraPass:
         self.ray = mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths)
         self.weight = mi.Color3f(weight)
         # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
-        self.pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
+        self.box = film.rfilter().is_box_filter()
+        self.pos = mi.Vector2f(pos) if self.box else pos_f
+        self._corner, self._offset, self._aperture = mi.Vector2f(pos), pos_f - mi.Vector2f(pos), aperture
+        self._map, self._time, self._sensor = (scale, offset), time, sensor
         self.sampler = sampler
         self.count = count
         self.per_pixel = int(per_pixel)
+        self.grid_pixel = idx            # the lane's pixel in the grid (with border), row by row
         self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
+
+    def shifted_ray(self, shift, active=True):
+        """(ray, weight, pos): a further camera ray through each lane's pixel, at the lane's
+        position shifted by ``shift`` (a fraction of the pixel, modulo the pixel: as uniform
+        in the pixel as the sampler's position), with the lane's aperture sample and time,
+        and the film position to splat it at."""
+        inside = self._offset + mi.ScalarVector2f(shift)
+        pos_f = self._corner + inside - dr.floor(inside)
+        scale, offset = self._map
+        ray, weight = self._sensor.sample_ray_differential(self._time, 0.0, dr.fma(pos_f, scale, offset),
+                                                           self._aperture, active)
+        return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), \
+            (self._corner if self.box else pos_f)
 
 
 class SpecularChain:
     """Result of :func:`specular_chain`: ``ray`` reaching the first surface with a
     non-delta component (``reached``), its ``throughput``, the ``emission`` seen along the
-    chain (including that surface's own), ``depth``, the specular bounces before it,
-    ``surface``: the first segment met a surface that is not hidden (the film's alpha),
+    chain (including that surface's own; ``first``: its part seen by the first segment),
+    ``depth``, the specular bounces before it, ``surface``: the first segment met a surface that is not hidden (the film's alpha),
     and ``si``: the surface interaction at ``ray``'s hit where it is known (a scene
     without surfaces to follow), else None."""
 
@@ -88,7 +146,7 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
     unbounded = max_bounces is None or max_bounces < 0
     bounce_limit = mi.UInt32(UNBOUNDED if unbounded else max_bounces)
 
-    def body(ray, throughput, emission, active, reached, surface, depth, rng):
+    def body(ray, throughput, emission, first, active, reached, surface, depth, rng):
         si = scene.ray_intersect(ray, active)
         emitter = si.emitter(scene, active)
         hidden = active & si.is_valid() & (depth == 0) & (emitter != None) if hide_emitters else mi.Bool(False)  # noqa
@@ -97,7 +155,9 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
         show = seen & si.is_valid()
         surface |= show & (depth == 0)
         visible = seen & (depth > 0) if hide_emitters else seen
-        emission += dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
+        seen_here = dr.select(visible, throughput * mi.Color3f(emitter.eval(si, visible)), 0.0)
+        emission += seen_here
+        first += dr.select(depth == 0, seen_here, 0.0)
         bsdf = si.bsdf(ray)
         flags = bsdf.flags()
         specular = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
@@ -113,7 +173,7 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
         follow &= dr.max(throughput) > 0
         ray = dr.select(follow, si.spawn_ray(si.to_world(bs.wo)), dr.select(hidden, si.spawn_ray(ray.d), ray))
         depth = dr.select(follow, depth + 1, depth)
-        return ray, throughput, emission, follow | hidden, reached, surface, depth, rng
+        return ray, throughput, emission, first, follow | hidden, reached, surface, depth, rng
 
     n = dr.width(ray.o)
     chain = SpecularChain()
@@ -125,14 +185,18 @@ def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitter
         show = seen & si.is_valid()
         chain.ray, chain.throughput, chain.depth, chain.surface, chain.si = ray, dr.ones(mi.Color3f, n), \
             dr.zeros(mi.UInt32, n), show, si
-        chain.emission = dr.select(seen, mi.Color3f(si.emitter(scene).eval(si, seen)), 0.0)
+        chain.emission = chain.first = dr.select(seen, mi.Color3f(si.emitter(scene).eval(si, seen)), 0.0)
         chain.reached = show & mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.Smooth)
         return chain
     with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
-        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.full(mi.Bool, True, n),
-                               dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n), dr.zeros(mi.UInt32, n), rng),
-                              lambda *state: state[3], body)
-    chain.ray, chain.throughput, chain.emission, _, chain.reached, chain.surface, chain.depth, _ = state
+        # loop state: the ray, its throughput, the emission seen so far and by the first
+        # segment, the lanes still following, the lanes that reached a non-delta surface,
+        # the first segment met a shown surface, the specular bounces, the random stream
+        state = dr.while_loop((ray, dr.ones(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n),
+                               dr.full(mi.Bool, True, n), dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n),
+                               dr.zeros(mi.UInt32, n), rng),
+                              lambda *state: state[4], body)
+    chain.ray, chain.throughput, chain.emission, chain.first, _, chain.reached, chain.surface, chain.depth, _ = state
     return chain
 
 
@@ -140,6 +204,20 @@ def is_specular(bsdf):
     """The scalar BSDF has only delta (or null) lobes: camera chains follow it."""
     flags = int(bsdf.flags()) if bsdf is not None else 0
     return bool(flags & int(mi.BSDFFlags.Delta)) and not flags & int(mi.BSDFFlags.Smooth)
+
+
+def seen_emission(scene, ray, active=True):
+    """The emission a camera ray sees at its first hit, or from the environment where it
+    leaves the scene (the first segment's part of :func:`specular_chain`'s emission
+    without ``hide_emitters``); the full surface interaction is computed only where the
+    hit shape emits."""
+    pi = scene.ray_intersect_preliminary(ray, False, active)
+    valid = mi.Bool(active) & pi.is_valid()
+    emits = valid & (pi.shape.emitter() != None)       # noqa: E711
+    if scene.environment() is not None:
+        emits |= mi.Bool(active) & ~pi.is_valid()
+    si = pi.compute_surface_interaction(ray, mi.RayFlags.All, emits)
+    return dr.select(emits, mi.Color3f(si.emitter(scene, emits).eval(si, emits)), 0.0)
 
 
 def first_shown(scene, ray, hide_emitters, active=True):

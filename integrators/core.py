@@ -202,6 +202,12 @@ class Frame:
             alpha = 0.0
         self._put(self.camera_block(name), cam.pos, mi.Color3f(value) * cam.weight, alpha, 1.0)
 
+    def put_emission(self, pos, value, weight, active=True):
+        """Put camera rays' ``value`` (Color3f, the emission they see) at film positions
+        ``pos`` with sample weight ``weight`` into the camera block 'emission' (developed on
+        its own and added: its own normalisation, no alpha)."""
+        self._put(self.camera_block("emission"), pos, mi.Color3f(value) * weight, 0.0, weight, active)
+
     def put_light(self, uv, value, name="light", scale=1.0, active=True):
         """Splat ``value`` at film positions ``uv`` into a light block (weight 0)."""
         block = self.light_block(name, scale)

@@ -26,6 +26,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
+from mi_plugins.integrators.camera import pixels_seeing_emission, seen_emission
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import patch_side
@@ -34,6 +35,9 @@ from mi_plugins.sampling import direct_light, needs_bsdf_sample
 
 #: the display modes; 'gather' is each integrator's own estimate
 DISPLAYS = ("gather", "smooth", "patches", "baked")
+#: camera rays per camera sample for the emission seen directly (``emitter_samples``)
+DEFAULT_EMITTER_SAMPLES = 8
+MAX_EMITTER_SAMPLES = 64
 #: camera lanes of one display pass at the most (a render of more is split into passes)
 MAX_PASS_LANES = 1 << 22
 
@@ -153,10 +157,58 @@ def pass_layout(spp, pixels):
     return per_pixel, spp // per_pixel
 
 
-def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None):
+def lattice(count):
+    """``count`` points of the unit square, the first (0, 0): the rank-1 lattice
+    (i / count, i g / count mod 1) of the generator g nearest count / golden ratio that is
+    prime to count (a Fibonacci lattice where count is a Fibonacci number: no two points
+    share a row or a column, so a lamp's straight edge cuts them evenly); shifted by a
+    uniform point, each point is uniform and together they stratify the pixel."""
+    if count == 1:
+        return [(0.0, 0.0)]
+    g = min((k for k in range(1, count) if np.gcd(k, count) == 1), key=lambda k: abs(k - count / 1.6180339887))
+    return [(i / count, (i * g % count) / count) for i in range(count)]
+
+
+def emission_shares(frame, cam, chain, shifts, active):
+    """The emission seen directly, put into a block of its own: each camera sample's first
+    segment's emission at weight 1, and on the lanes ``active`` averaged with further
+    rays (the sample's position shifted by ``shifts``, the points of :func:`lattice`) at
+    weight 1 / len(shifts) each: every lane weighs in, so that block's normalisation is
+    the camera samples' under any reconstruction filter. Returns the correction of the
+    lanes' own camera value (their first segment's emission taken out)."""
+    share = 1.0 / len(shifts)
+    first = chain.first * cam.weight
+    frame.put_emission(cam.pos, first, dr.select(active, share, 1.0))
+    for shift in shifts[1:]:           # a few rays per camera sample, one kernel
+        ray, weight, pos = cam.shifted_ray(shift, active)
+        frame.put_emission(pos, seen_emission(frame.scene, ray, active) * weight, share, active)
+    return -chain.first
+
+
+def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
+    """(shifts, mask): the lattice of ``emitter_samples`` points and the grid pixels
+    whose camera samples take further rays for the emission they see (the pixels where
+    a ray of a centred copy of the lattice sees emission, and their neighbours); None
+    where no pixel does, the sensor's rays ignore the film position or ``emitter_samples``
+    is 1. The pixels on a lamp's edge see it or not by chance: the stratified rays cut
+    that noise more than their number, at the cost of a camera ray each (the full surface
+    interaction only where they hit an emitting shape); elsewhere nothing is traced."""
+    scene = frame.scene
+    if emitter_samples < 2 or max_depth == 0 or hide_emitters or not (
+            scene.environment() is not None or any(e.get_shape() is not None for e in scene.emitters())):
+        return None
+    shifts = lattice(emitter_samples)
+    half = 0.5 / emitter_samples
+    mask = pixels_seeing_emission(frame, [((x + half) % 1.0, (y + half) % 1.0) for x, y in shifts])
+    return None if mask is None or not mask.any() else (shifts, mi.Bool(mask))
+
+
+def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1):
     """The image of ``frame`` from ``view`` (spp camera samples per pixel, in passes);
-    ``steps``: the render's step driver (one step per pass), or None."""
+    ``steps``: the render's step driver (one step per pass), or None; ``emitter_samples``:
+    camera rays per camera sample for the emission seen directly (:func:`edge_pixels`)."""
     scene, table = frame.scene, view.table
+    edges = edge_pixels(frame, max_depth, hide_emitters, emitter_samples)
     paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
     per_pixel, passes = pass_layout(frame.spp, frame.sample_pixels())
     frame.camera_passes(per_pixel, passes)
@@ -170,6 +222,8 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
+        if edges is not None and cam.film_rays:
+            value += emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel))
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())
         frame.commit()

@@ -34,6 +34,8 @@ class SolutionIntegrator(CoreIntegrator):
         """Read ``display`` and ``preview_every`` with the plugin's reader ``p``."""
         self.display = p.choice("display", "gather", display.DISPLAYS)
         self.preview_every = p.int("preview_every", 0, lo=0, note="0: no previews")
+        self.emitter_samples = p.int("emitter_samples", display.DEFAULT_EMITTER_SAMPLES, lo=1,
+                                     hi=display.MAX_EMITTER_SAMPLES)
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
@@ -106,7 +108,7 @@ class SolutionIntegrator(CoreIntegrator):
         solution.complete(frame.scene, table)
         view = display.View(solution, table, self.display)
         display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
-                       getattr(self, "gather_samples", 1), steps)
+                       getattr(self, "gather_samples", 1), steps, self.emitter_samples)
 
     def _previewer(self, scene, sensor, table):
         """``preview(solution, done, total, patches=table)``: the image (one camera sample per pixel) of the

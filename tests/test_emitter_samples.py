@@ -1,0 +1,124 @@
+"""Further camera rays for the emission seen directly (``emitter_samples`` of the displays
+from a solution, integrators.display.edge_pixels): the image keeps its mean, with a box
+or a Gaussian filter, under an area light or an environment; the lamp's edge pixels are
+far less noisy; nothing is traced where no emitter is seen."""
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mi_plugins.integrators import display
+
+T = mi.ScalarTransform4f
+SEEDS = (1, 2, 3)
+
+
+def lamp_scene(rfilter="box", sky=False):
+    """A lamp (a square facing the camera, its edges across pixels) above a floor it lights,
+    a dark back wall; or (``sky``) a black block alone in front of a bright environment."""
+    d = {"type": "scene",
+         "floor": {"type": "rectangle", "to_world": T().translate([0, -1, 0]).rotate([1, 0, 0], -90).scale(2),
+                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}},
+         "wall": {"type": "rectangle", "to_world": T().translate([0, 0, -2]).scale(2),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.1, 0.1, 0.1]}}},
+         "sensor": {"type": "perspective", "fov": 50,
+                    "to_world": T().look_at(origin=[0.03, 0.02, 3.0], target=[0.03, 0.02, 0], up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": rfilter}}}}
+    if sky:
+        d["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": [2.0, 2.0, 2.0]}}
+        d["block"] = {"type": "cube", "to_world": T().rotate([0, 0, 1], 20).scale(0.45),
+                      "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
+        del d["wall"], d["floor"]
+    else:
+        d["lamp"] = {"type": "rectangle", "to_world": T().rotate([0, 0, 1], 15).scale(0.43),
+                     "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [5.0, 5.0, 5.0]}}}
+    return mi.load_dict(d)
+
+
+def renders(scene, emitter_samples, spp=64, mode="smooth"):
+    integrator = mi.load_dict({"type": "qmc_lighttrace", "display": mode, "samples": 20000,
+                               "emitter_samples": emitter_samples})
+    return np.stack([np.array(mi.render(scene, integrator=integrator, spp=spp, seed=s))[..., :3] for s in SEEDS])
+
+
+def agree(a, b, radiance, spp=64, bound=4.5):
+    """Per pixel, the two sets of renders' means differ by less than ``bound`` standard
+    errors: from the renders' spread, and at least the coverage noise of a pixel that sees
+    an emitter of ``radiance`` over a share c = mean / radiance of it (radiance^2 c (1 - c)
+    per camera sample): a pixel that a lamp's corner barely touches can show it in none
+    of a few renders, and their spread is then 0."""
+    c = np.clip(np.concatenate([a, b]).mean(axis=0) / radiance, 0.0, 1.0)
+    floor = radiance ** 2 * c * (1 - c) / (spp * len(a))
+    se = np.sqrt(np.maximum(a.var(axis=0, ddof=1) / len(a), floor) + np.maximum(b.var(axis=0, ddof=1) / len(b), floor))
+    return np.all(np.abs(a.mean(axis=0) - b.mean(axis=0)) <= bound * se + 1e-4)
+
+
+@pytest.mark.parametrize("rfilter,sky,mode", [("box", False, "smooth"), ("gaussian", False, "baked"),
+                                              ("box", True, "smooth")])
+def test_the_mean_stays_and_the_edges_quieten(rfilter, sky, mode):
+    scene = lamp_scene(rfilter, sky)
+    one, eight = renders(scene, 1, mode=mode), renders(scene, 8, mode=mode)
+    assert agree(one, eight, 2.0 if sky else 5.0)
+    # the pixels that the emitter's edge crosses (partly covered): their noise falls well
+    # beyond 8 fold with a box filter (a Gaussian one mixes in its neighbours' other noise)
+    seen = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=1024))
+    c = seen[..., :3].mean(axis=-1) / (2.0 if sky else 5.0)          # the share of the pixel that sees emission
+    edge = (c > 0.03) & (c < 0.97)
+    assert edge.sum() >= 8
+    ratio = one.var(axis=0, ddof=1).mean(axis=-1)[edge].sum() / eight.var(axis=0, ddof=1).mean(axis=-1)[edge].sum()
+    assert ratio > (4.0 if rfilter == "gaussian" else 8.0), ratio
+
+
+def test_a_wrong_share_is_caught(monkeypatch):
+    """Test of the test: the main ray's emission kept at full weight beside the further
+    rays' shares (the lamp's edges too bright), or the shares splatted one pixel off."""
+    scene = lamp_scene()
+    one = renders(scene, 1)
+    keep = display.emission_shares
+    monkeypatch.setattr(display, "emission_shares", lambda *a: keep(*a) * 0.0)
+    assert not agree(one, renders(scene, 8), 5.0)
+
+    class Off:
+        def __init__(self, frame):
+            self.frame = frame
+
+        def __getattr__(self, name):
+            return getattr(self.frame, name)
+
+        def put_emission(self, pos, value, weight, active=True):
+            self.frame.put_emission(pos + mi.Vector2f(1.0, 0.0), value, weight, active)
+
+    monkeypatch.setattr(display, "emission_shares", lambda frame, *a: keep(Off(frame), *a))
+    assert not agree(one, renders(scene, 8), 5.0)
+    monkeypatch.setattr(display, "emission_shares", keep)
+    assert agree(one, renders(scene, 8), 5.0)
+
+
+def test_nothing_is_traced_where_no_emitter_is_seen(monkeypatch):
+    """No emitter in view (the camera turned to the floor), ``hide_emitters`` or
+    ``emitter_samples`` 1: no further rays; the edge pixels are the ones next to the lamp."""
+    calls = []
+    keep = display.emission_shares
+    monkeypatch.setattr(display, "emission_shares", lambda *a: calls.append(1) or keep(*a))
+    scene = lamp_scene()
+    integrator = mi.load_dict({"type": "qmc_lighttrace", "display": "smooth", "samples": 5000})
+    mi.render(scene, integrator=integrator, spp=4)
+    assert calls
+    calls.clear()
+    down = mi.load_dict({"type": "perspective", "fov": 20, "film": {"type": "hdrfilm", "width": 8, "height": 8},
+                         "to_world": T().look_at(origin=[1.5, 0, 1.5], target=[1.5, -1, 1.5], up=[0, 0, 1])})
+    mi.render(scene, integrator=integrator, sensor=down, spp=4)
+    for params in ({"hide_emitters": True}, {"emitter_samples": 1}):
+        mi.render(scene, integrator=mi.load_dict({"type": "qmc_lighttrace", "display": "smooth", "samples": 5000,
+                                                  **params}), spp=4)
+    assert not calls
+
+
+def test_the_edge_pixels_surround_the_lamp():
+    from mi_plugins.integrators.core import Frame
+    scene = lamp_scene()
+    frame = Frame(scene, scene.sensors()[0], 1, 0, "test")
+    shifts, mask = display.edge_pixels(frame, -1, False, 8)
+    mask = np.array(mask).reshape(16, 16)
+    lamp = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=256))[..., 0] > 0
+    assert np.all(mask[lamp]) and 0 < mask.sum() < lamp.sum() + 4 * 16
+    assert len(shifts) == 8 and len({x for x, _ in shifts}) == 8 and len({y for _, y in shifts}) == 8
