@@ -25,11 +25,12 @@ def grid(film):
     return size, border, size + 2 * border
 
 
-def pixels_seeing_emission(frame, shifts):
-    """numpy bool (grid pixels, row by row; :func:`grid`): the pixels where a camera ray
-    through one of ``shifts`` (positions in the pixel) sees emission at its first hit, and
-    their neighbours (a lamp narrower than the shifts' spacing, the filter's reach); None
-    for a sensor whose rays ignore the film position."""
+def emission_edges(frame, shifts):
+    """numpy bool (grid pixels, row by row; :func:`grid`): the pixels whose camera rays
+    through ``shifts`` (positions in the pixel) do not all see the same emission at their
+    first hit (a lamp's or the sky's edge crosses them; a pixel inside a uniform emitter
+    or seeing none is left out), and their neighbours (a lamp narrower than the shifts'
+    spacing, the filter's reach); None for a sensor whose rays ignore the film position."""
     film, sensor = frame.film, frame.sensor
     size, border, full = grid(film)
     k = len(shifts)
@@ -44,14 +45,16 @@ def pixels_seeing_emission(frame, shifts):
     ray, _ = sensor.sample_ray_differential(sensor.shutter_open(), 0.0,
                                             dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale),
                                             mi.Point2f(0.5))
-    seen = np.array(dr.any(seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
-                           != 0.0), dtype=bool)
-    if seen.size != int(full[0]) * int(full[1]) * k:
+    seen = seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
+    seen = np.stack([np.array(c, dtype=np.float64) for c in (seen.x, seen.y, seen.z)], axis=-1)
+    if len(seen) != int(full[0]) * int(full[1]) * k:
         return None                 # a sensor whose rays ignore the film position
-    seen = seen.reshape(int(full[1]), int(full[0]), k).any(axis=2)
-    grown = seen.copy()
-    grown[1:] |= seen[:-1]
-    grown[:-1] |= seen[1:]
+    seen = seen.reshape(int(full[1]), int(full[0]), k, 3)
+    spread = (seen.max(axis=2) - seen.min(axis=2)).max(axis=-1)
+    edge = spread > 1e-3 * np.abs(seen).max(axis=(2, 3))
+    grown = edge.copy()
+    grown[1:] |= edge[:-1]
+    grown[:-1] |= edge[1:]
     wide = grown.copy()
     wide[:, 1:] |= grown[:, :-1]
     wide[:, :-1] |= grown[:, 1:]

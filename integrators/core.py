@@ -299,7 +299,11 @@ class Frame:
         else:
             channels = self.film.create_block().channel_count()
             data = np.ones((self.height, self.width, channels), dtype=np.float32)
-            data[..., :3] = np.array(result)[..., :3]
+            developed = np.array(result)
+            # the developed channels in the block's order, its weight last (alpha kept);
+            # films with special channels (AOVs, spectral) order them otherwise: RGB only
+            kept = 3 if mi.has_flag(self.film.flags(), mi.FilmFlags.Special) else min(developed.shape[-1], channels - 1)
+            data[..., :kept] = developed[..., :kept]
             self.film.put_block(mi.ImageBlock(mi.TensorXf(data), self.film.crop_offset()))
         return mi.TensorXf()
 

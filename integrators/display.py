@@ -26,7 +26,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
-from mi_plugins.integrators.camera import pixels_seeing_emission, seen_emission
+from mi_plugins.integrators.camera import emission_edges, seen_emission
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import patch_side
@@ -187,10 +187,10 @@ def emission_shares(frame, cam, chain, shifts, active):
 
 def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
     """(shifts, mask): the lattice of ``emitter_samples`` points and the grid pixels
-    whose camera samples take further rays for the emission they see (the pixels where
-    a ray of a centred copy of the lattice sees emission, and their neighbours); None
-    where no pixel does, the sensor's rays ignore the film position or ``emitter_samples``
-    is 1. The pixels on a lamp's edge see it or not by chance: the stratified rays cut
+    whose camera samples take further rays for the emission they see (the pixels whose
+    rays through a centred copy of the lattice see different emission, and their
+    neighbours: ``camera.emission_edges``); None where no pixel does, the sensor's rays
+    ignore the film position or ``emitter_samples`` is 1. The pixels on a lamp's edge see it or not by chance: the stratified rays cut
     that noise more than their number, at the cost of a camera ray each (the full surface
     interaction only where they hit an emitting shape); elsewhere nothing is traced."""
     scene = frame.scene
@@ -199,8 +199,17 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
         return None
     shifts = lattice(emitter_samples)
     half = 0.5 / emitter_samples
-    mask = pixels_seeing_emission(frame, [((x + half) % 1.0, (y + half) % 1.0) for x, y in shifts])
+    mask = emission_edges(frame, [((x + half) % 1.0, (y + half) % 1.0) for x, y in shifts])
     return None if mask is None or not mask.any() else (shifts, mi.Bool(mask))
+
+
+def with_edges(frame, cam, chain, edges, value):
+    """A camera pass's ``value`` (before the sensor's weight) with the emission that its
+    first segment sees moved to the 'emission' block and averaged with further rays in
+    the pixels of ``edges`` (:func:`edge_pixels`; None: ``value`` as it is)."""
+    if edges is None or not cam.film_rays:
+        return value
+    return value + emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel))
 
 
 def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1):
@@ -222,8 +231,7 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
-        if edges is not None and cam.film_rays:
-            value += emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel))
+        value = with_edges(frame, cam, chain, edges, value)
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())
         frame.commit()

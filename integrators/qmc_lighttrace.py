@@ -11,6 +11,7 @@ import numpy as np
 
 from mi_plugins import darkness, qmc, refinement, seeds, support
 from mi_plugins.integrators.core import coverage
+from mi_plugins.integrators.display import edge_pixels, with_edges
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins.integrators.neighbours import share_with_neighbours
 from mi_plugins.integrators.qmc_checks import check_gather_lanes
@@ -158,13 +159,13 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
      * - emitter_samples
        - int
        - 8
-       - 1 .. 64: camera rays per camera sample for the emission seen directly, in the
-         displays from the solution (``'smooth'``, ``'patches'``, ``'baked'``): the sample's
-         film position shifted by the points of a rank-1 lattice, in the pixels next to
-         the visible emitters only (found by one such set of rays per pixel). The pixels on
-         a lamp's edge see it or not by chance, a noise every camera sample of ``path``
-         carries; 8 rays cut it 14-25 fold with a box filter (7 fold with a Gaussian one)
-         at the cost of 7 camera rays there. 1: off
+       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every display (the gather's and the solution's):
+         the sample's film position shifted by the points of a rank-1 lattice, in the
+         pixels on a visible emitter's edge only (found by one such set of rays per
+         pixel: where they see different emission). There a pixel sees the emitter or not
+         by chance, a noise every camera sample of ``path`` carries; 8 rays cut it 14-25
+         fold with a box filter (7 fold with a Gaussian one) at the cost of 7 camera rays
+         there. 1: off
      * - preview_every
        - int
        - 0
@@ -345,14 +346,15 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                             self.hide_emitters)
         # passes of a bounded number of gather lanes (their memory: about 110 bytes each)
         frame.camera_passes(per_pixel, passes)
+        edges = edge_pixels(frame, self.max_depth, self.hide_emitters, self.emitter_samples)
         for k in range(passes):
             cam = frame.camera_pass()
             seed = frame.seed if k == 0 else seeds.stream(frame.seed, "gather pass", k)
             chain, si, light, gathered = paths.estimate(cam, seed, self.gather_samples)
             if self.share_neighbors:
                 gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
-            frame.put_camera(cam, chain.emission + chain.throughput * (light + gathered),
-                             coverage=coverage(scene, chain.surface, self.hide_emitters))
+            value = with_edges(frame, cam, chain, edges, chain.emission + chain.throughput * (light + gathered))
+            frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, self.hide_emitters))
             if passes > 1:
                 dr.eval(frame.state())
 

@@ -1,10 +1,14 @@
 """Further camera rays for the emission seen directly (``emitter_samples`` of the displays
-from a solution, integrators.display.edge_pixels): the image keeps its mean, with a box
+from a solution and of ``qmc_lighttrace``'s gather, integrators.display.edge_pixels): the image keeps its mean, with a box
 or a Gaussian filter, under an area light or an environment; the lamp's edge pixels are
 far less noisy; nothing is traced where no emitter is seen."""
+import os
+
 import mitsuba as mi
 import numpy as np
 import pytest
+
+from conftest import REPO
 
 from mi_plugins.integrators import display
 
@@ -53,7 +57,7 @@ def agree(a, b, radiance, spp=64, bound=4.5):
 
 
 @pytest.mark.parametrize("rfilter,sky,mode", [("box", False, "smooth"), ("gaussian", False, "baked"),
-                                              ("box", True, "smooth")])
+                                              ("box", True, "smooth"), ("box", False, "gather")])
 def test_the_mean_stays_and_the_edges_quieten(rfilter, sky, mode):
     scene = lamp_scene(rfilter, sky)
     one, eight = renders(scene, 1, mode=mode), renders(scene, 8, mode=mode)
@@ -113,12 +117,44 @@ def test_nothing_is_traced_where_no_emitter_is_seen(monkeypatch):
     assert not calls
 
 
-def test_the_edge_pixels_surround_the_lamp():
+def test_the_edge_pixels_follow_the_lamps_edges():
+    """The pixels that take further rays: every pixel the lamp's edge crosses, none more
+    than a pixel away from one (the lamp's inside and the floor take none); a
+    constant-radiance scene (every surface emits alike) takes none."""
     from mi_plugins.integrators.core import Frame
     scene = lamp_scene()
     frame = Frame(scene, scene.sensors()[0], 1, 0, "test")
     shifts, mask = display.edge_pixels(frame, -1, False, 8)
     mask = np.array(mask).reshape(16, 16)
-    lamp = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=256))[..., 0] > 0
-    assert np.all(mask[lamp]) and 0 < mask.sum() < lamp.sum() + 4 * 16
+    seen = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=1024))
+    c = seen[..., :3].mean(axis=-1) / 5.0
+    crossed = (c > 0.01) & (c < 0.99)
+    near = crossed.copy()
+    for axis in (0, 1):
+        for step in (1, -1):
+            near |= np.roll(crossed, step, axis=axis)
+    near |= np.roll(np.roll(crossed, 1, 0), 1, 1) | np.roll(np.roll(crossed, -1, 0), -1, 1) | \
+        np.roll(np.roll(crossed, 1, 0), -1, 1) | np.roll(np.roll(crossed, -1, 0), 1, 1)
+    assert crossed.sum() >= 8 and np.all(mask[crossed]) and not np.any(mask & ~near)
+    assert np.any((c >= 0.99) & ~mask)                            # inside the lamp: nothing to add
     assert len(shifts) == 8 and len({x for x, _ in shifts}) == 8 and len({y for _, y in shifts}) == 8
+    keller = mi.load_file(os.path.join(REPO, "configs", "keller_cube.xml"), integrator="qmc_lighttrace")
+    assert display.edge_pixels(Frame(keller, keller.sensors()[0], 1, 0, "test"), -1, False, 8) is None
+
+
+def test_an_undeveloped_film_keeps_its_alpha():
+    """``mi.render(..., develop=False)`` leaves the film holding the sum of the camera
+    blocks (the emission's own among them): its alpha is the camera rays' coverage, as
+    in the developed image (a block of unit weights set it to 1 before)."""
+    scene = lamp_scene(sky=False)
+    sensor = mi.load_dict({"type": "perspective", "fov": 70, "film": {"type": "hdrfilm", "width": 16, "height": 16,
+                                                                       "pixel_format": "rgba",
+                                                                       "rfilter": {"type": "box"}},
+                           "to_world": T().look_at(origin=[0, 0.5, 3.0], target=[0, 0.3, 0], up=[0, 1, 0])})
+    integrator = mi.load_dict({"type": "qmc_lighttrace", "display": "smooth", "samples": 5000})
+    image = np.array(mi.render(scene, integrator=integrator, sensor=sensor, spp=16, seed=2))
+    integrator.render(scene, sensor, seed=2, spp=16, develop=False)
+    held = np.array(sensor.film().develop())
+    alpha = image[..., 3]
+    assert alpha.min() < 0.5 and alpha.max() == 1.0          # the wall ends: rays leave the scene
+    np.testing.assert_allclose(held, image, rtol=1e-5, atol=1e-6)
