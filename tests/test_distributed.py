@@ -182,6 +182,29 @@ def test_a_killed_worker_loses_nothing(clients, scenes):
     client.wait_for_workers(2, timeout=60)
 
 
+def test_a_task_the_scheduler_cancels_is_submitted_again(clients, scenes, monkeypatch):
+    """A future cancelled without this render asking (the scheduler forgot its key: a
+    run of the suite once lost a task so) is submitted again: the same image. Test of the
+    test: without resubmission the render stops, naming the task."""
+    client = clients[2]
+    calm = distributed.render(scenes["path"], 16, client=client, seed=7, tasks=4, progress=False).image
+    submit, cancelled = client.submit, []
+
+    def cancelling(*args, **kwargs):
+        future = submit(*args, **kwargs)
+        if not cancelled:
+            cancelled.append(future.key)
+            client.cancel([future])
+        return future
+    monkeypatch.setattr(client, "submit", cancelling)
+    again = distributed.render(scenes["path"], 16, client=client, seed=7, tasks=4, progress=False)
+    assert cancelled and np.array_equal(again.image, calm) and again.tasks_done == 4
+    monkeypatch.setattr(dask_engine, "RESUBMITS", 0)
+    cancelled.clear()
+    with pytest.raises(dask_engine.TaskFailed, match="Cancelled"):
+        distributed.render(scenes["path"], 16, client=client, seed=7, tasks=4, progress=False)
+
+
 def test_a_failing_task_stops_the_render_with_its_error(clients, tmp_path):
     """ray_bundle without first_shot refuses a delta light when it renders (the scene
     loads): the render stops with that error, naming the task, without hanging."""

@@ -5,7 +5,8 @@ new computation, never a cached result), collects the results as they complete (
 progress bar over all tasks), and returns them by task index, so the merge order never
 depends on which worker finished first. A worker lost mid-render is Dask's to handle: its
 tasks are rerun elsewhere, and as a task's result depends only on the task, the image is
-unchanged. A task that raises stops the render: the other tasks are cancelled and the
+unchanged. A task whose future the scheduler cancels on its own (a key it forgot) is
+submitted again (``RESUBMITS`` times at most). A task that raises stops the render: the other tasks are cancelled and the
 task's exception is raised, with the task named. Ctrl-C cancels the outstanding tasks and
 returns what finished (``interrupted``).
 """
@@ -55,22 +56,42 @@ def _bar(total, desc, show):
     return tqdm(total=total, desc=desc, unit="task")
 
 
+#: a task whose future the scheduler cancels (not this client: a key it forgot, e.g. after a
+#: lost connection) is submitted again, this many times at most
+RESUBMITS = 2
+
+
 def run_tasks(client, fn, tasks, args, progress=True, desc="tasks"):
     """Run ``fn(*args[0], task, *args[1:])`` for every task on ``client``: returns
     (results: index -> value, interrupted)."""
     from distributed import as_completed
+    from distributed.client import FutureCancelledError
     tag = uuid.uuid4().hex[:8]
     head, tail = args[0], tuple(args[1:])
-    futures = {client.submit(fn, *head, task, *tail, key="mi-plugins-%s-%s-%d" % (tag, task.kind, task.index),
-                             pure=False): task for task in tasks}
-    results, bar = {}, _bar(len(tasks), desc, progress)
+
+    def submit(task, attempt=0):
+        key = "mi-plugins-%s-%s-%d" % (tag, task.kind, task.index) + ("-again%d" % attempt if attempt else "")
+        return client.submit(fn, *head, task, *tail, key=key, pure=False)
+
+    futures = {submit(task): task for task in tasks}
+    results, bar, again = {}, _bar(len(tasks), desc, progress), {}
+    running = as_completed(list(futures))
     try:
-        for future in as_completed(list(futures)):
-            task = futures[future]
+        for future in running:
+            task = futures.pop(future)
             if future.status == "error":
                 error = future.exception()
                 raise TaskFailed(task, len(tasks), error) from error
-            results[task.index] = future.result()
+            try:
+                results[task.index] = future.result()
+            except FutureCancelledError as error:
+                again[task.index] = again.get(task.index, 0) + 1
+                if again[task.index] > RESUBMITS:
+                    raise TaskFailed(task, len(tasks), error) from error
+                retry = submit(task, again[task.index])
+                futures[retry] = task
+                running.add(retry)
+                continue
             if bar is not None:
                 bar.update(1)
     except KeyboardInterrupt:
