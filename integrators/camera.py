@@ -30,28 +30,30 @@ def emission_edges(frame, shifts):
     through ``shifts`` (positions in the pixel) do not all see the same emission at their
     first hit (a lamp's or the sky's edge crosses them; a pixel inside a uniform emitter
     or seeing none is left out), and their neighbours (a lamp narrower than the shifts'
-    spacing, the filter's reach); None for a sensor whose rays ignore the film position."""
+    spacing, the filter's reach); None for a sensor whose rays ignore the film position.
+    One kernel per shift over the pixels (the shift an opaque value: one compilation), the
+    running lowest and highest emission per pixel kept: memory of a few pixel-sized arrays."""
     film, sensor = frame.film, frame.sensor
     size, border, full = grid(film)
-    k = len(shifts)
-    lane = dr.arange(mi.UInt32, int(dr.prod(full)) * k)
-    pixel, j = lane // k, lane % k
+    pixels = int(full[0]) * int(full[1])
+    pixel = dr.arange(mi.UInt32, pixels)
     py = pixel // full[0]
     px = pixel - py * full[0]
-    at = mi.Vector2f(dr.gather(mi.Float, mi.Float([x for x, _ in shifts]), j),
-                     dr.gather(mi.Float, mi.Float([y for _, y in shifts]), j))
-    pos_f = mi.Vector2f(mi.Int32(px) - border + film.crop_offset()[0], mi.Int32(py) - border + film.crop_offset()[1]) + at
+    corner = mi.Vector2f(mi.Int32(px) - border + film.crop_offset()[0], mi.Int32(py) - border + film.crop_offset()[1])
     scale = dr.rcp(mi.ScalarVector2f(size))
-    ray, _ = sensor.sample_ray_differential(sensor.shutter_open(), 0.0,
-                                            dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale),
-                                            mi.Point2f(0.5))
-    seen = seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
-    seen = np.stack([np.array(c, dtype=np.float64) for c in (seen.x, seen.y, seen.z)], axis=-1)
-    if len(seen) != int(full[0]) * int(full[1]) * k:
-        return None                 # a sensor whose rays ignore the film position
-    seen = seen.reshape(int(full[1]), int(full[0]), k, 3)
-    spread = (seen.max(axis=2) - seen.min(axis=2)).max(axis=-1)
-    edge = spread > 1e-3 * np.abs(seen).max(axis=(2, 3))
+    low, high = dr.full(mi.Color3f, dr.inf, pixels), dr.full(mi.Color3f, -dr.inf, pixels)
+    for x, y in shifts:                # a few shifts: a kernel each, the same one
+        pos_f = corner + mi.Vector2f(dr.opaque(mi.Float, x), dr.opaque(mi.Float, y))
+        ray, _ = sensor.sample_ray_differential(sensor.shutter_open(), 0.0,
+                                                dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale),
+                                                mi.Point2f(0.5))
+        if dr.width(ray.o) != pixels or dr.width(ray.d) != pixels:
+            return None                 # a sensor whose rays ignore the film position
+        seen = seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
+        low, high = dr.minimum(low, seen), dr.maximum(high, seen)
+        dr.eval(low, high)
+    peak = dr.maximum(dr.max(dr.abs(low)), dr.max(dr.abs(high)))
+    edge = np.array(dr.max(high - low) > 1e-3 * peak, dtype=bool).reshape(int(full[1]), int(full[0]))
     grown = edge.copy()
     grown[1:] |= edge[:-1]
     grown[:-1] |= edge[1:]

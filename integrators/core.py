@@ -202,6 +202,12 @@ class Frame:
             alpha = 0.0
         self._put(self.camera_block(name), cam.pos, mi.Color3f(value) * cam.weight, alpha, 1.0)
 
+    def put_camera_share(self, pos, value, active=True, name="camera"):
+        """Add ``value`` at film positions ``pos`` to a camera block with weight 0: a share of
+        the camera samples put there (their further rays), which leaves the block's
+        normalisation and alpha as they are."""
+        self._put(self.camera_block(name), pos, mi.Color3f(value), 0.0, 0.0, active)
+
     def put_emission(self, pos, value, weight, active=True):
         """Put camera rays' ``value`` (Color3f, the emission they see) at film positions
         ``pos`` with sample weight ``weight`` into the camera block 'emission' (developed on

@@ -170,16 +170,23 @@ def lattice(count):
 
 
 def emission_shares(frame, cam, chain, shifts, active):
-    """The emission seen directly, put into a block of its own: each camera sample's first
-    segment's emission at weight 1, and on the lanes ``active`` averaged with further
-    rays (the sample's position shifted by ``shifts``, the points of :func:`lattice`) at
-    weight 1 / len(shifts) each: every lane weighs in, so that block's normalisation is
-    the camera samples' under any reconstruction filter. Returns the correction of the
-    lanes' own camera value (their first segment's emission taken out)."""
+    """The emission seen directly by the lanes ``active``, averaged with further rays (the
+    sample's position shifted by ``shifts``, the points of :func:`lattice`); returns the
+    correction of the lanes' camera value. With a box filter every ray of a sample lands
+    in the sample's pixel with the same filter weight: the further rays' emission is added
+    to the camera block at weight 0 and the sample's own counts 1 / len(shifts). Any other
+    filter weighs the rays by their own positions: the emission then goes into a block of
+    its own, every camera sample weighing in (weight 1, or 1 / len(shifts) per ray on the
+    lanes ``active``), so that its normalisation is the camera samples'."""
     share = 1.0 / len(shifts)
-    first = chain.first * cam.weight
-    frame.put_emission(cam.pos, first, dr.select(active, share, 1.0))
-    for shift in shifts[1:]:           # a few rays per camera sample, one kernel
+    if cam.box:
+        for shift in shifts[1:]:       # a few rays per camera sample, one kernel
+            ray, weight, _ = cam.shifted_ray(shift, active)
+            seen = seen_emission(frame.scene, ray, active) * weight * share
+            frame.put_camera_share(cam.pos, seen, active & dr.any(seen != 0.0))
+        return dr.select(active, chain.first * (share - 1.0), 0.0)
+    frame.put_emission(cam.pos, chain.first * cam.weight, dr.select(active, share, 1.0))
+    for shift in shifts[1:]:
         ray, weight, pos = cam.shifted_ray(shift, active)
         frame.put_emission(pos, seen_emission(frame.scene, ray, active) * weight, share, active)
     return -chain.first

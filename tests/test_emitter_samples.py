@@ -72,10 +72,13 @@ def test_the_mean_stays_and_the_edges_quieten(rfilter, sky, mode):
     assert ratio > (4.0 if rfilter == "gaussian" else 8.0), ratio
 
 
-def test_a_wrong_share_is_caught(monkeypatch):
+@pytest.mark.parametrize("rfilter", ["box", "gaussian"])
+def test_a_wrong_share_is_caught(rfilter, monkeypatch):
     """Test of the test: the main ray's emission kept at full weight beside the further
-    rays' shares (the lamp's edges too bright), or the shares splatted one pixel off."""
-    scene = lamp_scene()
+    rays' shares (the lamp's edges too bright), or the shares splatted one pixel off; with
+    a box filter (the camera block's weight-0 shares) and a Gaussian one (a block of its
+    own)."""
+    scene = lamp_scene(rfilter)
     one = renders(scene, 1)
     keep = display.emission_shares
     monkeypatch.setattr(display, "emission_shares", lambda *a: keep(*a) * 0.0)
@@ -90,6 +93,9 @@ def test_a_wrong_share_is_caught(monkeypatch):
 
         def put_emission(self, pos, value, weight, active=True):
             self.frame.put_emission(pos + mi.Vector2f(1.0, 0.0), value, weight, active)
+
+        def put_camera_share(self, pos, value, active=True):
+            self.frame.put_camera_share(pos + mi.Vector2f(1.0, 0.0), value, active)
 
     monkeypatch.setattr(display, "emission_shares", lambda frame, *a: keep(Off(frame), *a))
     assert not agree(one, renders(scene, 8), 5.0)
@@ -143,13 +149,13 @@ def test_the_edge_pixels_follow_the_lamps_edges():
 
 
 def test_an_undeveloped_film_keeps_its_alpha():
-    """``mi.render(..., develop=False)`` leaves the film holding the sum of the camera
-    blocks (the emission's own among them): its alpha is the camera rays' coverage, as
+    """``render(..., develop=False)`` leaves the film holding the sum of the camera blocks
+    (with a Gaussian filter the emission's own among them): its alpha is the camera rays' coverage, as
     in the developed image (a block of unit weights set it to 1 before)."""
     scene = lamp_scene(sky=False)
     sensor = mi.load_dict({"type": "perspective", "fov": 70, "film": {"type": "hdrfilm", "width": 16, "height": 16,
                                                                        "pixel_format": "rgba",
-                                                                       "rfilter": {"type": "box"}},
+                                                                       "rfilter": {"type": "gaussian"}},
                            "to_world": T().look_at(origin=[0, 0.5, 3.0], target=[0, 0.3, 0], up=[0, 1, 0])})
     integrator = mi.load_dict({"type": "qmc_lighttrace", "display": "smooth", "samples": 5000})
     image = np.array(mi.render(scene, integrator=integrator, sensor=sensor, spp=16, seed=2))
