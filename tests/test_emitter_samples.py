@@ -164,3 +164,26 @@ def test_an_undeveloped_film_keeps_its_alpha():
     alpha = image[..., 3]
     assert alpha.min() < 0.5 and alpha.max() == 1.0          # the wall ends: rays leave the scene
     np.testing.assert_allclose(held, image, rtol=1e-5, atol=1e-6)
+
+
+def test_other_cameras_and_films_keep_the_mean(monkeypatch):
+    """A thin lens (the further rays share the sample's aperture point), a crop window, a
+    film that samples its border, a tent filter and a one-channel film: the mean as with
+    one ray per sample."""
+    scene = lamp_scene()
+    sensor = mi.load_dict({"type": "thinlens", "fov": 50, "aperture_radius": 0.05, "focus_distance": 3.0,
+                           "to_world": T().look_at(origin=[0.03, 0.02, 3.0], target=[0.03, 0.02, 0], up=[0, 1, 0]),
+                           "film": {"type": "hdrfilm", "width": 24, "height": 24, "crop_offset_x": 4,
+                                    "crop_offset_y": 4, "crop_width": 16, "crop_height": 16, "sample_border": True,
+                                    "pixel_format": "luminance", "rfilter": {"type": "tent"}}})
+
+    def runs(count):
+        integrator = mi.load_dict({"type": "qmc_lighttrace", "display": "smooth", "samples": 20000,
+                                   "emitter_samples": count})
+        return np.stack([np.array(mi.render(scene, integrator=integrator, sensor=sensor, spp=64, seed=s))
+                         for s in SEEDS])
+    calls, keep = [], display.emission_shares
+    monkeypatch.setattr(display, "emission_shares", lambda *a: calls.append(1) or keep(*a))
+    one, eight = runs(1), runs(8)
+    assert len(calls) == len(SEEDS) and one.shape[1:3] == (16, 16) and np.any(one > 1.0)
+    assert agree(one, eight, 5.0)
