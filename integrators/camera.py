@@ -105,7 +105,7 @@ class CameraPass:
         self.box = film.rfilter().is_box_filter()
         self.pos = mi.Vector2f(pos) if self.box else pos_f
         self._corner, self._offset, self._aperture = mi.Vector2f(pos), pos_f - mi.Vector2f(pos), aperture
-        self._map, self._time, self._sensor = (scale, offset), time, sensor
+        self._time, self._sensor = time, sensor
         self.sampler = sampler
         self.count = count
         self.per_pixel = int(per_pixel)
@@ -113,17 +113,25 @@ class CameraPass:
         self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
 
     def shifted_ray(self, shift, active=True):
-        """(ray, weight, pos): a further camera ray through each lane's pixel, at the lane's
-        position shifted by ``shift`` (a fraction of the pixel, modulo the pixel: as uniform
-        in the pixel as the sampler's position), with the lane's aperture sample and time,
-        and the film position to splat it at."""
-        inside = self._offset + mi.ScalarVector2f(shift)
-        pos_f = self._corner + inside - dr.floor(inside)
-        scale, offset = self._map
-        ray, weight = self._sensor.sample_ray_differential(self._time, 0.0, dr.fma(pos_f, scale, offset),
-                                                           self._aperture, active)
-        return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), \
-            (self._corner if self.box else pos_f)
+        """(ray, weight, pos): a further camera ray through each lane's pixel (see
+        :func:`shifted_ray`), with the film position to splat it at."""
+        ray, weight, pos_f = shifted_ray(self._sensor, self._corner, self._offset, self._aperture, self._time, shift,
+                                         active)
+        return ray, weight, (self._corner if self.box else pos_f)
+
+
+def shifted_ray(sensor, corner, offset, aperture, time, shift, active=True):
+    """(ray, weight, film position): a camera ray through the pixel at ``corner`` (film
+    coordinates, crop offset included), at the position ``offset`` (in the pixel) shifted
+    by ``shift`` modulo the pixel: as uniform in the pixel as ``offset`` itself, with the
+    given aperture sample and time."""
+    film = sensor.film()
+    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+    inside = offset + mi.ScalarVector2f(shift)
+    pos_f = corner + inside - dr.floor(inside)
+    ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset())
+                                                                   * scale), aperture, active)
+    return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), pos_f
 
 
 class SpecularChain:

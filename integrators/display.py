@@ -169,7 +169,7 @@ def lattice(count):
     return [(i / count, (i * g % count) / count) for i in range(count)]
 
 
-def emission_shares(frame, cam, chain, shifts, active):
+def emission_shares(frame, cam, chain, shifts, active, block="camera"):
     """The emission seen directly by the lanes ``active``, averaged with further rays (the
     sample's position shifted by ``shifts``, the points of :func:`lattice`); returns the
     correction of the lanes' camera value. With a box filter every ray of a sample lands
@@ -177,13 +177,14 @@ def emission_shares(frame, cam, chain, shifts, active):
     to the camera block at weight 0 and the sample's own counts 1 / len(shifts). Any other
     filter weighs the rays by their own positions: the emission then goes into a block of
     its own, every camera sample weighing in (weight 1, or 1 / len(shifts) per ray on the
-    lanes ``active``), so that its normalisation is the camera samples'."""
+    lanes ``active``), so that its normalisation is the camera samples'. ``cam``: a camera
+    pass (``box``, ``pos``, ``weight``, ``shifted_ray``); ``block``: its camera block."""
     share = 1.0 / len(shifts)
     if cam.box:
         for shift in shifts[1:]:       # a few rays per camera sample, one kernel
             ray, weight, _ = cam.shifted_ray(shift, active)
             seen = seen_emission(frame.scene, ray, active) * weight * share
-            frame.put_camera_share(cam.pos, seen, active & dr.any(seen != 0.0))
+            frame.put_camera_share(cam.pos, seen, active & dr.any(seen != 0.0), block)
         return dr.select(active, chain.first * (share - 1.0), 0.0)
     frame.put_emission(cam.pos, chain.first * cam.weight, dr.select(active, share, 1.0))
     for shift in shifts[1:]:
@@ -210,13 +211,13 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
     return None if mask is None or not mask.any() else (shifts, mi.Bool(mask))
 
 
-def with_edges(frame, cam, chain, edges, value):
+def with_edges(frame, cam, chain, edges, value, block="camera"):
     """A camera pass's ``value`` (before the sensor's weight) with the emission that its
     first segment sees moved to the 'emission' block and averaged with further rays in
     the pixels of ``edges`` (:func:`edge_pixels`; None: ``value`` as it is)."""
     if edges is None or not cam.film_rays:
         return value
-    return value + emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel))
+    return value + emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel), block)
 
 
 def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1):

@@ -159,13 +159,13 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
      * - emitter_samples
        - int
        - 8
-       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every display (the gather's and the solution's):
-         the sample's film position shifted by the points of a rank-1 lattice, in the
-         pixels on a visible emitter's edge only (found by one such set of rays per
-         pixel: where they see different emission). There a pixel sees the emitter or not
-         by chance, a noise every camera sample of ``path`` carries; 8 rays cut it 14-25
-         fold with a box filter (7 fold with a Gaussian one) at the cost of 7 camera rays
-         there. 1: off
+       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every
+         display (the gather's and the solution's): the sample's film position shifted by
+         the points of a rank-1 lattice, in the pixels on a visible emitter's edge only
+         (found by one such set of rays per pixel: where they see different emission).
+         There a pixel sees the emitter or not by chance, a noise every camera sample of
+         ``path`` carries; 8 rays cut it 14-25 fold with a box filter (7 fold with a
+         Gaussian one) at the cost of 7 camera rays there. 1: off
      * - preview_every
        - int
        - 0

@@ -1,7 +1,8 @@
-"""Further camera rays for the emission seen directly (``emitter_samples`` of the displays
-from a solution and of ``qmc_lighttrace``'s gather, integrators.display.edge_pixels): the image keeps its mean, with a box
-or a Gaussian filter, under an area light or an environment; the lamp's edge pixels are
-far less noisy; nothing is traced where no emitter is seen."""
+"""Further camera rays for the emission seen directly (``emitter_samples`` of every display
+of ``qmc_lighttrace`` and ``ray_bundle``, integrators.display.edge_pixels): the image keeps
+its mean, with a box or a Gaussian filter, under an area light or an environment, through
+other cameras and films; the lamp's edge pixels are far less noisy; nothing is traced
+where no emitter edge is seen; ``ray_bundle``'s frozen camera pass records them once."""
 import os
 
 import mitsuba as mi
@@ -94,8 +95,8 @@ def test_a_wrong_share_is_caught(rfilter, monkeypatch):
         def put_emission(self, pos, value, weight, active=True):
             self.frame.put_emission(pos + mi.Vector2f(1.0, 0.0), value, weight, active)
 
-        def put_camera_share(self, pos, value, active=True):
-            self.frame.put_camera_share(pos + mi.Vector2f(1.0, 0.0), value, active)
+        def put_camera_share(self, pos, value, active=True, name="camera"):
+            self.frame.put_camera_share(pos + mi.Vector2f(1.0, 0.0), value, active, name)
 
     monkeypatch.setattr(display, "emission_shares", lambda frame, *a: keep(Off(frame), *a))
     assert not agree(one, renders(scene, 8), 5.0)
@@ -187,3 +188,27 @@ def test_other_cameras_and_films_keep_the_mean(monkeypatch):
     one, eight = runs(1), runs(8)
     assert len(calls) == len(SEEDS) and one.shape[1:3] == (16, 16) and np.any(one > 1.0)
     assert agree(one, eight, 5.0)
+
+
+def test_ray_bundle_gather_takes_them_in_its_frozen_camera_pass(monkeypatch):
+    """``ray_bundle``'s gather (its camera passes are frozen steps): the mean as with one
+    ray, the edge pixels quieter, the camera pass recorded once and replayed by the next
+    render, and the replay's image the plain (traced) render's."""
+    from mi_plugins.integrators.ray_bundle import frozen
+    scene = lamp_scene()
+
+    def runs(count, seeds=SEEDS):
+        integrator = mi.load_dict({"type": "ray_bundle", "iterations": 12, "emitter_samples": count})
+        return integrator, np.stack([np.array(mi.render(scene, integrator=integrator, spp=1, seed=s))[..., :3]
+                                     for s in seeds])
+    _, one = runs(1)
+    integrator, eight = runs(8)
+    assert agree(one, eight, 5.0)
+    seen = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=1024))
+    edge = (seen[..., :3].mean(axis=-1) > 0.15) & (seen[..., :3].mean(axis=-1) < 4.85)
+    assert one.var(axis=0, ddof=1)[edge].sum() > 8.0 * eight.var(axis=0, ddof=1)[edge].sum()
+    _, image = integrator.step_cache.steps[integrator.step_cache.last + (True,)]
+    assert image.recordings == 1
+    monkeypatch.setattr(frozen, "ENABLED", False)
+    _, plain = runs(8, SEEDS[:1])
+    np.testing.assert_allclose(plain[0], eight[0], rtol=1e-4, atol=1e-5)

@@ -25,6 +25,7 @@ the direct light reflected there), used + 1 + k without (order 0 is emission).
 import drjit as dr
 import mitsuba as mi
 
+from mi_plugins.integrators import display
 from mi_plugins.integrators.camera import specular_chain
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.handoff import Handoff
@@ -119,6 +120,7 @@ class Estimator:
 
     def __init__(self, transport, hide_emitters, max_depth=-1):
         self.transport, self.hide_emitters, self.max_depth = transport, hide_emitters, int(max_depth)
+        self.edges = None        # (shifts, pixels) of display.edge_pixels: further rays there
         self.group = transport.layout.chains      # chains per camera pass (fewer: see limits.camera_group)
         needed = any(s.bsdf() is not None and has_non_smooth_scalar(s.bsdf()) for s in transport.scene.shapes())
         self.handoff = Handoff(self.max_depth, max_used=max(self.max_depth, 1)) if needed else None
@@ -152,6 +154,9 @@ class Estimator:
                 value += self.handoff.sample(scene, cam.sampler, si, bsdf, used if depth >= 0 else 1, valid,
                                              max_used=max(depth, 1))
             value = path.emission + path.throughput * value
+            if self.edges is not None and cam.film_rays:
+                value += display.emission_shares(frame, cam, path, self.edges[0],
+                                                 dr.gather(mi.Bool, self.edges[1], cam.grid_pixel), block)
         else:
             value = path.throughput * value
         covered = None

@@ -17,6 +17,8 @@ import mitsuba as mi
 from mi_plugins import seeds
 from mi_plugins.integrators.ray_bundle import convergence, limits
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
+from mi_plugins.integrators.camera import shifted_ray
+from mi_plugins.integrators.display import edge_pixels
 from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
 from mi_plugins.integrators.ray_bundle.frozen import FrozenStep, fingerprint, freezable, jit_leaves, own_arrays
@@ -26,12 +28,27 @@ from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
 
 @dataclass
 class Cam:
-    """One camera pass's samples as a frozen step's input."""
+    """One camera pass's samples as a frozen step's input (``camera.CameraPass``'s: the
+    further rays of the emission seen on emitters' edges are drawn from its pixel corners,
+    positions in the pixel, aperture samples and time)."""
     ray: mi.Ray3f
     weight: mi.Color3f
     pos: mi.Vector2f
     sampler: mi.Sampler
     count: int
+    sensor: mi.Sensor = None
+    corner: mi.Vector2f = None
+    offset: mi.Vector2f = None
+    aperture: mi.Point2f = None
+    time: mi.Float = None
+    grid_pixel: mi.UInt32 = None
+    box: bool = True
+    film_rays: bool = True
+
+    def shifted_ray(self, shift, active=True):
+        ray, weight, pos_f = shifted_ray(self.sensor, self.corner, self.offset, self.aperture, self.time, shift,
+                                         active)
+        return ray, weight, (self.corner if self.box else pos_f)
 
 
 @dataclass
@@ -77,6 +94,8 @@ class Run:
                                                                             integ.max_depth)
         if self.estimator is not None:
             self.estimator.group = integ.camera_group = self.group
+            # the pixels on an emitter's edge (further camera rays for the emission seen there)
+            self.estimator.edges = edge_pixels(frame, integ.max_depth, integ.hide_emitters, integ.emitter_samples)
         self.average = (DiffuseAverage(layout, integ.estimate, self.transport.weight, orders)
                         if integ.average_diffuse and not solve_only else None)
         # (chains that share their diffuse patches are not independent groups: no error)
@@ -99,6 +118,8 @@ class Run:
         self.seed = frame.seed
         for name in (["iterations"] if self.image_iterations else []) + (["final"] if self.average else []):
             touch(frame.camera_block(name))   # made now: a frozen step must find them among its inputs
+        if self.estimator is not None and self.estimator.edges is not None and not frame.film.rfilter().is_box_filter():
+            touch(frame.camera_block("emission"))     # (the emission's own block: display.emission_shares)
         own_arrays(table, self.transport.direct, self.average, self.estimator, self.irradiance)
         # the frame's blocks (not its committed copies, which change; nor the film, whose
         # storage, untouched until the end, would be made opaque by the first step)
@@ -123,7 +144,8 @@ class Run:
                 self.trace is not None, self.group, integ.hide_emitters, integ.max_depth, integ.gather_nee,
                 integ.estimate, integ.point_sources, self.uses_sampler, int(film.flags()), frame.width,
                 frame.height, tuple(sorted(frame._blocks)), self.image_iterations, self.solve_only,
-                t.children is not None, t.sharing is not None)
+                t.children is not None, t.sharing is not None,
+                None if self.estimator is None or self.estimator.edges is None else len(self.estimator.edges[0]))
 
     def __hash__(self):
         return hash(self.key)
@@ -168,9 +190,14 @@ class Run:
             seed = seeds.stream(self.seed, "camera_path", pass_index * 65537 + g)
             sampler = cam.sampler if self.uses_sampler else None
             cam.sampler.schedule_state()                # the camera's samples, not how they were drawn
-            dr.eval(cam.ray, cam.weight, cam.pos)
-            self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count), state, incoming, sources,
-                       dr.opaque(mi.UInt32, g * self.group), dr.opaque(mi.UInt64, seed), block)
+            edges = self.estimator.edges is not None
+            further = (cam._corner, cam._offset, cam._aperture, mi.Float(cam._time), cam.grid_pixel) if edges \
+                else (None,) * 5
+            dr.eval(cam.ray, cam.weight, cam.pos, *(x for x in further if x is not None))
+            self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count,
+                                 self.frame.sensor if edges else None, *further, cam.box, cam.film_rays),
+                       state, incoming, sources, dr.opaque(mi.UInt32, g * self.group), dr.opaque(mi.UInt64, seed),
+                       block)
 
     # ------------------------------------------------------------------ iterations
     def run(self, steps, directions, state=None):
