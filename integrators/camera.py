@@ -70,7 +70,9 @@ class CameraPass:
     index of the sample's pixel in the crop window), ``sampler`` (draw further numbers
     from it), ``count`` (lanes: ``per_pixel`` consecutive lanes per pixel of the
     ``grid_width`` x ``grid_height`` grid, the crop window plus the filter's border when
-    the film samples it)."""
+    the film samples it), ``grid_pixel`` (the lane's pixel in that grid), ``box`` (a box
+    filter: ``pos`` is the pixel), ``film_rays`` (the sensor's rays follow the film
+    position: :meth:`shifted_ray` draws further rays through the lane's pixel)."""
 
     def __init__(self, frame, sampler, per_pixel):
         film, sensor = frame.film, frame.sensor
@@ -138,9 +140,9 @@ class SpecularChain:
     """Result of :func:`specular_chain`: ``ray`` reaching the first surface with a
     non-delta component (``reached``), its ``throughput``, the ``emission`` seen along the
     chain (including that surface's own; ``first``: its part seen by the first segment),
-    ``depth``, the specular bounces before it, ``surface``: the first segment met a surface that is not hidden (the film's alpha),
-    and ``si``: the surface interaction at ``ray``'s hit where it is known (a scene
-    without surfaces to follow), else None."""
+    ``depth``, the specular bounces before it, ``surface``: the first segment met a
+    surface that is not hidden (the film's alpha), and ``si``: the surface interaction at
+    ``ray``'s hit where it is known (a scene without surfaces to follow), else None."""
 
 
 def specular_chain(scene, ray, rng, max_depth=-1, max_bounces=None, hide_emitters=False):

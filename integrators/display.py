@@ -198,9 +198,10 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
     whose camera samples take further rays for the emission they see (the pixels whose
     rays through a centred copy of the lattice see different emission, and their
     neighbours: ``camera.emission_edges``); None where no pixel does, the sensor's rays
-    ignore the film position or ``emitter_samples`` is 1. The pixels on a lamp's edge see it or not by chance: the stratified rays cut
-    that noise more than their number, at the cost of a camera ray each (the full surface
-    interaction only where they hit an emitting shape); elsewhere nothing is traced."""
+    ignore the film position or ``emitter_samples`` is 1. The pixels on a lamp's edge see
+    it or not by chance: the stratified rays cut that noise more than their number, at the
+    cost of a camera ray each (the full surface interaction only where they hit an
+    emitting shape); elsewhere nothing is traced."""
     scene = frame.scene
     if emitter_samples < 2 or max_depth == 0 or hide_emitters or not (
             scene.environment() is not None or any(e.get_shape() is not None for e in scene.emitters())):
@@ -212,9 +213,9 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
 
 
 def with_edges(frame, cam, chain, edges, value, block="camera"):
-    """A camera pass's ``value`` (before the sensor's weight) with the emission that its
-    first segment sees moved to the 'emission' block and averaged with further rays in
-    the pixels of ``edges`` (:func:`edge_pixels`; None: ``value`` as it is)."""
+    """A camera pass's ``value`` (before the sensor's weight; ``block``: its camera block)
+    with the emission that its first segment sees averaged with further rays in the pixels
+    of ``edges`` (:func:`emission_shares`, :func:`edge_pixels`; None: ``value`` as it is)."""
     if edges is None or not cam.film_rays:
         return value
     return value + emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel), block)

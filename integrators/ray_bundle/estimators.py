@@ -154,9 +154,7 @@ class Estimator:
                 value += self.handoff.sample(scene, cam.sampler, si, bsdf, used if depth >= 0 else 1, valid,
                                              max_used=max(depth, 1))
             value = path.emission + path.throughput * value
-            if self.edges is not None and cam.film_rays:
-                value += display.emission_shares(frame, cam, path, self.edges[0],
-                                                 dr.gather(mi.Bool, self.edges[1], cam.grid_pixel), block)
+            value = display.with_edges(frame, cam, path, self.edges, value, block)
         else:
             value = path.throughput * value
         covered = None

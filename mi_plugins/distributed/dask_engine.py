@@ -6,9 +6,9 @@ progress bar over all tasks), and returns them by task index, so the merge order
 depends on which worker finished first. A worker lost mid-render is Dask's to handle: its
 tasks are rerun elsewhere, and as a task's result depends only on the task, the image is
 unchanged. A task whose future the scheduler cancels on its own (a key it forgot) is
-submitted again (``RESUBMITS`` times at most). A task that raises stops the render: the other tasks are cancelled and the
-task's exception is raised, with the task named. Ctrl-C cancels the outstanding tasks and
-returns what finished (``interrupted``).
+submitted again (``RESUBMITS`` times at most). A task that raises stops the render: the
+other tasks are cancelled and the task's exception is raised, with the task named. Ctrl-C
+cancels the outstanding tasks and returns what finished (``interrupted``).
 """
 import uuid
 
