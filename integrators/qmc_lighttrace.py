@@ -301,9 +301,11 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         return self.patch_size if self.patch_size is not None else default_patch_size(scene)
 
     def patch_table(self, scene):
-        """The patches of ``scene`` (``patch_size``, ``subdivide``)."""
-        return cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide,
-                            cluster=self.cluster, dark_levels=self.dark_levels)
+        """The patches of ``scene`` (``patch_size``, ``subdivide``; the dark splits of
+        ``dark_record`` where one is given)."""
+        table = cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide,
+                             cluster=self.cluster, dark_levels=self.dark_levels)
+        return darkness.with_splits(table, self.dark_record)     # (a distributed render's record)
 
     # ------------------------------------------------------------------ distributed parts
     def distributed_split(self, scene):

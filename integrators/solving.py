@@ -40,6 +40,7 @@ class SolutionIntegrator(CoreIntegrator):
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
         self._given = None           # a Solution handed over by use_solution
+        self.dark_record = None      # dark splits to replay (a distributed render's; None: its own)
 
     # ------------------------------------------------------------------ hooks
     def solution_settings(self):

@@ -103,6 +103,38 @@ def test_several_shapes_keep_their_patches_on_every_worker(name, clients, tmp_pa
         plan._check_numbering(scene, plan.numbering(scene) + "x")
 
 
+def test_every_task_replays_one_workers_dark_splits(monkeypatch, tmp_path):
+    """A worker whose rays judge grazing points otherwise (another acceleration structure)
+    splits other patches in the dark: the render's numbering task records one worker's
+    splits and every task replays them, so that the per-patch sums add up. Here this
+    process plays both: its splits with a judgement that finds 3 patches half dark each
+    round are recorded, and a plain load replays them. Test of the test: a task without
+    the record numbers the patches as its own process does."""
+    from mi_plugins import darkness
+    path = scene_copy(str(tmp_path), INTEGRATORS["qmc_lighttrace"])
+    shipped = distributed.bundle(path, {})
+
+    def fractions(table, *args, **kwargs):
+        f = np.zeros((table.front_count, 2))
+        f[:3, 0] = 0.5
+        return f
+    with monkeypatch.context() as patch:
+        patch.setattr(darkness, "dark_fractions", fractions)
+        record = plan.run_numbering(shipped, {}, mi.variant(), plan.Task("numbering", 0))
+        other = mi.load_file(path)
+        expected = plan.numbering(other)
+    assert len(record) == darkness.DEFAULT_LEVELS and all(len(r) == 3 for r in record)
+    plain = mi.load_file(path)
+    own = plan.numbering(plain)
+    assert own != expected
+    task = plan.with_dark([plan.Task("particles", 0, seed=0, start=0, count=100)], record)[0]
+    plan._integrator(plain, task)
+    assert plan.numbering(plain) == expected
+    assert plain.integrator().patch_table(plain).dark_rounds == [list(r) for r in record]
+    plan._integrator(plain, plan.Task("particles", 0, seed=0, start=0, count=100))
+    assert plan.numbering(plain) == own
+
+
 def test_passes_equal_the_single_process_render(clients, scenes):
     """The split is render_in_passes' split: with tasks = passes and the same seed the
     image is the same, bit for bit (`path`)."""

@@ -410,12 +410,14 @@ class RayBundleIntegrator(SolutionIntegrator):
                 gc.enable()
 
     def patch_table(self, scene):
-        """The patches of ``scene`` (checked against the memory first), with back sides."""
+        """The patches of ``scene`` (checked against the memory first), with back sides;
+        the dark splits of ``dark_record`` where one is given."""
         h = self.patch_size_for(scene)
         check = lambda: limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster),
                                              available_memory())
-        return cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster,
-                            before_build=check, dark_levels=self.dark_levels)
+        table = cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster,
+                             before_build=check, dark_levels=self.dark_levels)
+        return darkness.with_splits(table, self.dark_record)     # (a distributed render's record)
 
     def _render_frame(self, frame):
         table = self.patch_table(frame.scene)

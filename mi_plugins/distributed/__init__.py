@@ -116,6 +116,10 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
     remote = client.scatter(shipped, broadcast=True, hash=False)   # own key: never a released twin
     shared = None
     if first is not None:
+        # one worker's dark splits, replayed by every task: the per-patch sums add up
+        rounds = run_tasks(client, plan.run_numbering, [plan.Task("numbering", 0)], ((remote, params, variant),
+                                                                                    threads), False)[0][0]
+        first.tasks, image_phase.tasks = plan.with_dark(first.tasks, rounds), plan.with_dark(image_phase.tasks, rounds)
         found, stopped = run_tasks(client, first.run, first.tasks, ((remote, params, variant), threads), progress,
                                    first.name)
         if stopped:

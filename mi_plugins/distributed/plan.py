@@ -46,6 +46,8 @@ class Task:
     seed: int = 0      # Mitsuba seed of the task's render; particles: the render seed
     start: int = 0     # particles: first path of the range; view: the sensor index
     count: int = 0     # particles: paths in the range; chains: chains of the group
+    dark: tuple = None  # two-phase renders: the patches split in the dark, as one worker split
+    #                    them (:func:`run_numbering`), replayed by every task
 
     def describe(self, total):
         if self.kind == "pass":
@@ -57,6 +59,8 @@ class Task:
             return "chain group %d of %d (%d chains, seed %d)" % (self.index + 1, total, self.count, self.seed)
         if self.kind == "solve":
             return "the solve (seed %d)" % self.seed
+        if self.kind == "numbering":
+            return "the patch numbering"
         if self.kind == "view":
             return "view %d of %d (sensor %d, %d spp, seed %d)" % (self.index + 1, total, self.start, self.spp,
                                                                    self.seed)
@@ -224,6 +228,33 @@ def numbering(scene):
     return shape_order(scene) + " " + hashlib.sha1(json.dumps(table.dark_rounds).encode()).hexdigest()[:16]
 
 
+def run_numbering(shipped, params, variant, task, threads=None):
+    """The patches split in the dark by this worker's integrator (``darkness``: a tuple
+    of rounds), which every task of a two-phase render replays: workers whose
+    acceleration structures judge grazing rays otherwise (another build, another CPU)
+    number the patches alike."""
+    scene = _scene(shipped, params, variant, threads)
+    try:
+        return tuple(tuple(r) for r in scene.integrator().patch_table(scene).dark_rounds)
+    except Exception as error:
+        raise _portable(error) from None
+
+
+def with_dark(tasks, rounds):
+    """``tasks`` carrying the recorded dark splits ``rounds``."""
+    import dataclasses
+    return [dataclasses.replace(t, dark=rounds) for t in tasks]
+
+
+def _integrator(scene, task):
+    """``scene``'s integrator (kept by this process for the next task), replaying the
+    task's recorded dark splits, or its own where the task carries none."""
+    integrator = scene.integrator()
+    if hasattr(integrator, "dark_record"):
+        integrator.dark_record = task.dark
+    return integrator
+
+
 def _check_numbering(scene, expected):
     """ValueError where this worker numbers the patches otherwise than the first phase."""
     if numbering(scene) != expected:
@@ -235,7 +266,7 @@ def run_pass(shipped, params, variant, task, threads=None, particles=None):
     """Render one pass; ``particles`` = (deposits, paths) for qmc_lighttrace's gather passes."""
     import mitsuba as mi
     scene = _scene(shipped, params, variant, threads)
-    integrator = scene.integrator()
+    integrator = _integrator(scene, task)
     try:
         if particles is not None:
             _check_numbering(scene, particles[2])
@@ -263,7 +294,7 @@ def run_chains(shipped, params, variant, task, threads=None):
     """ray_bundle: the average sums and counts of one group of chains."""
     scene = _scene(shipped, params, variant, threads)
     try:
-        return scene.integrator().chain_averages(scene, task.seed, task.spp, task.count), numbering(scene)
+        return _integrator(scene, task).chain_averages(scene, task.seed, task.spp, task.count), numbering(scene)
     except Exception as error:
         raise _portable(error) from None
 
@@ -272,6 +303,7 @@ def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
     scene = _scene(shipped, params, variant, threads)
     try:
+        _integrator(scene, task)
         _check_numbering(scene, average[2])
         return scene.integrator().gather_from(scene, average[0], average[1], task.spp, task.seed)
     except Exception as error:
@@ -281,7 +313,7 @@ def run_gathering(shipped, params, variant, task, threads=None, average=None):
 def run_particles(shipped, params, variant, task, threads=None):
     """The deposits of one range of qmc_lighttrace's particle phase."""
     scene = _scene(shipped, params, variant, threads)
-    return scene.integrator().trace_particles(scene, task.start, task.count, task.seed), numbering(scene)
+    return _integrator(scene, task).trace_particles(scene, task.start, task.count, task.seed), numbering(scene)
 
 
 def keeps_solution(integrator):
