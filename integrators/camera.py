@@ -25,6 +25,25 @@ def grid(film):
     return size, border, size + 2 * border
 
 
+def grid_position(idx, full, border):
+    """The pixel (Vector2i, crop window coordinates: the border's pixels below 0) of the
+    grid pixels ``idx`` (row by row; :func:`grid`)."""
+    py = idx // full[0]
+    px = idx - py * full[0]
+    return mi.Vector2i(mi.Int32(px) - border, mi.Int32(py) - border)
+
+
+def film_ray(sensor, pos_f, time, aperture, active=True):
+    """(ray, weight) of ``sensor`` through film position ``pos_f`` (crop offset included),
+    mapped as Mitsuba's own integrators map it. The differential variant: 'irradiancemeter'
+    and 'batch' implement only that one (Mitsuba 3.9.1: their sample_ray raises "not
+    implemented"), as Mitsuba's path calls."""
+    film = sensor.film()
+    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+    uv = dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale)
+    return sensor.sample_ray_differential(time, 0.0, uv, aperture, active)
+
+
 def emission_edges(frame, shifts):
     """numpy bool (grid pixels, row by row; :func:`grid`): the pixels whose camera rays
     through ``shifts`` (positions in the pixel) do not all see the same emission at their
@@ -34,19 +53,13 @@ def emission_edges(frame, shifts):
     One kernel per shift over the pixels (the shift an opaque value: one compilation), the
     running lowest and highest emission per pixel kept: memory of a few pixel-sized arrays."""
     film, sensor = frame.film, frame.sensor
-    size, border, full = grid(film)
+    _, border, full = grid(film)
     pixels = int(full[0]) * int(full[1])
-    pixel = dr.arange(mi.UInt32, pixels)
-    py = pixel // full[0]
-    px = pixel - py * full[0]
-    corner = mi.Vector2f(mi.Int32(px) - border + film.crop_offset()[0], mi.Int32(py) - border + film.crop_offset()[1])
-    scale = dr.rcp(mi.ScalarVector2f(size))
+    corner = mi.Vector2f(grid_position(dr.arange(mi.UInt32, pixels), full, border) + mi.Vector2i(film.crop_offset()))
     low, high = dr.full(mi.Color3f, dr.inf, pixels), dr.full(mi.Color3f, -dr.inf, pixels)
     for x, y in shifts:                # a few shifts: a kernel each, the same one
         pos_f = corner + mi.Vector2f(dr.opaque(mi.Float, x), dr.opaque(mi.Float, y))
-        ray, _ = sensor.sample_ray_differential(sensor.shutter_open(), 0.0,
-                                                dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset()) * scale),
-                                                mi.Point2f(0.5))
+        ray, _ = film_ray(sensor, pos_f, sensor.shutter_open(), mi.Point2f(0.5))
         if dr.width(ray.o) != pixels or dr.width(ray.d) != pixels:
             return None                 # a sensor whose rays ignore the film position
         seen = seen_emission(frame.scene, mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths))
@@ -72,27 +85,22 @@ class CameraPass:
     ``grid_width`` x ``grid_height`` grid, the crop window plus the filter's border when
     the film samples it), ``grid_pixel`` (the lane's pixel in that grid), ``box`` (a box
     filter: ``pos`` is the pixel), ``film_rays`` (the sensor's rays follow the film
-    position: :meth:`shifted_ray` draws further rays through the lane's pixel)."""
+    position: :func:`shifted_ray` draws further rays through the lane's pixel from
+    ``corner``, ``offset``, ``aperture``, ``time`` and ``sensor``)."""
 
     def __init__(self, frame, sampler, per_pixel):
         film, sensor = frame.film, frame.sensor
         size, border, full = grid(film)
         idx = dr.arange(mi.UInt32, dr.prod(full) * per_pixel) // dr.opaque(mi.UInt32, per_pixel)
-        py = idx // full[0]
-        px = idx - py * full[0]
-        pos = mi.Vector2i(mi.Int32(px) - border, mi.Int32(py) - border)
+        pos = grid_position(idx, full, border)
         self.pixel = mi.UInt32(dr.clip(pos.y, 0, size[1] - 1) * size[0] + dr.clip(pos.x, 0, size[0] - 1))
         pos += mi.Vector2i(film.crop_offset())
         pos_f = mi.Vector2f(pos) + sampler.next_2d()
-        scale = dr.rcp(mi.ScalarVector2f(size))
-        offset = -mi.ScalarVector2f(film.crop_offset()) * scale
         aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Point2f(0.5)
         time = sensor.shutter_open()
         if sensor.shutter_open_time() > 0:
             time += sampler.next_1d() * sensor.shutter_open_time()
-        # the differential variant: 'irradiancemeter' and 'batch' implement only that one
-        # (Mitsuba 3.9.1: their sample_ray raises "not implemented"), as Mitsuba's path calls
-        ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, offset), aperture)
+        ray, weight = film_ray(sensor, pos_f, time, aperture)
         count = dr.width(idx)
         self.film_rays = dr.width(ray.o) == count and dr.width(ray.d) == count
         if dr.width(ray.o) != count or dr.width(ray.d) != count or dr.width(weight) != count:
@@ -106,34 +114,26 @@ class CameraPass:
         # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
         self.box = film.rfilter().is_box_filter()
         self.pos = mi.Vector2f(pos) if self.box else pos_f
-        self._corner, self._offset, self._aperture = mi.Vector2f(pos), pos_f - mi.Vector2f(pos), aperture
-        self._time, self._sensor = time, sensor
+        # what further rays through the lane's pixel are drawn from (:func:`shifted_ray`)
+        self.corner, self.offset, self.aperture = mi.Vector2f(pos), pos_f - mi.Vector2f(pos), aperture
+        self.time, self.sensor = time, sensor
         self.sampler = sampler
         self.count = count
         self.per_pixel = int(per_pixel)
         self.grid_pixel = idx            # the lane's pixel in the grid (with border), row by row
         self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
 
-    def shifted_ray(self, shift, active=True):
-        """(ray, weight, pos): a further camera ray through each lane's pixel (see
-        :func:`shifted_ray`), with the film position to splat it at."""
-        ray, weight, pos_f = shifted_ray(self._sensor, self._corner, self._offset, self._aperture, self._time, shift,
-                                         active)
-        return ray, weight, (self._corner if self.box else pos_f)
 
-
-def shifted_ray(sensor, corner, offset, aperture, time, shift, active=True):
-    """(ray, weight, film position): a camera ray through the pixel at ``corner`` (film
-    coordinates, crop offset included), at the position ``offset`` (in the pixel) shifted
-    by ``shift`` modulo the pixel: as uniform in the pixel as ``offset`` itself, with the
-    given aperture sample and time."""
-    film = sensor.film()
-    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
-    inside = offset + mi.ScalarVector2f(shift)
-    pos_f = corner + inside - dr.floor(inside)
-    ray, weight = sensor.sample_ray_differential(time, 0.0, dr.fma(pos_f, scale, -mi.ScalarVector2f(film.crop_offset())
-                                                                   * scale), aperture, active)
-    return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), pos_f
+def shifted_ray(cam, shift, active=True):
+    """(ray, weight, pos): a further camera ray through the pixels of camera pass ``cam``
+    (its ``sensor``, pixel ``corner``s, positions ``offset`` in the pixel, ``aperture``
+    samples, ``time``, ``box``) at the positions shifted by ``shift`` modulo the pixel (as
+    uniform in the pixel as the sampler's), and the film position to splat it at."""
+    inside = cam.offset + mi.ScalarVector2f(shift)
+    pos_f = cam.corner + inside - dr.floor(inside)
+    ray, weight = film_ray(cam.sensor, pos_f, cam.time, cam.aperture, active)
+    return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), \
+        (cam.corner if cam.box else pos_f)
 
 
 class SpecularChain:

@@ -208,11 +208,14 @@ class Frame:
         normalisation and alpha as they are."""
         self._put(self.camera_block(name), pos, mi.Color3f(value), 0.0, 0.0, active)
 
+    #: the camera block of :meth:`put_emission`
+    EMISSION = "emission"
+
     def put_emission(self, pos, value, weight, active=True):
         """Put camera rays' ``value`` (Color3f, the emission they see) at film positions
-        ``pos`` with sample weight ``weight`` into the camera block 'emission' (developed on
-        its own and added: its own normalisation, no alpha)."""
-        self._put(self.camera_block("emission"), pos, mi.Color3f(value) * weight, 0.0, weight, active)
+        ``pos`` with sample weight ``weight`` into the camera block ``EMISSION`` (developed
+        on its own and added: its own normalisation, no alpha)."""
+        self._put(self.camera_block(self.EMISSION), pos, mi.Color3f(value) * weight, 0.0, weight, active)
 
     def put_light(self, uv, value, name="light", scale=1.0, active=True):
         """Splat ``value`` at film positions ``uv`` into a light block (weight 0)."""

@@ -26,7 +26,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import seeds
-from mi_plugins.integrators.camera import emission_edges, seen_emission
+from mi_plugins.integrators.camera import emission_edges, seen_emission, shifted_ray
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import patch_side
@@ -178,17 +178,18 @@ def emission_shares(frame, cam, chain, shifts, active, block="camera"):
     filter weighs the rays by their own positions: the emission then goes into a block of
     its own, every camera sample weighing in (weight 1, or 1 / len(shifts) per ray on the
     lanes ``active``), so that its normalisation is the camera samples'. ``cam``: a camera
-    pass (``box``, ``pos``, ``weight``, ``shifted_ray``); ``block``: its camera block."""
+    pass (``box``, ``pos``, ``weight`` and what ``camera.shifted_ray`` reads); ``block``: its
+    camera block."""
     share = 1.0 / len(shifts)
     if cam.box:
         for shift in shifts[1:]:       # a few rays per camera sample, one kernel
-            ray, weight, _ = cam.shifted_ray(shift, active)
+            ray, weight, _ = shifted_ray(cam, shift, active)
             seen = seen_emission(frame.scene, ray, active) * weight * share
             frame.put_camera_share(cam.pos, seen, active & dr.any(seen != 0.0), block)
         return dr.select(active, chain.first * (share - 1.0), 0.0)
     frame.put_emission(cam.pos, chain.first * cam.weight, dr.select(active, share, 1.0))
     for shift in shifts[1:]:
-        ray, weight, pos = cam.shifted_ray(shift, active)
+        ray, weight, pos = shifted_ray(cam, shift, active)
         frame.put_emission(pos, seen_emission(frame.scene, ray, active) * weight, share, active)
     return -chain.first
 

@@ -17,7 +17,6 @@ import mitsuba as mi
 from mi_plugins import seeds
 from mi_plugins.integrators.ray_bundle import convergence, limits
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
-from mi_plugins.integrators.camera import shifted_ray
 from mi_plugins.integrators.display import edge_pixels
 from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
@@ -28,9 +27,8 @@ from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
 
 @dataclass
 class Cam:
-    """One camera pass's samples as a frozen step's input (``camera.CameraPass``'s: the
-    further rays of the emission seen on emitters' edges are drawn from its pixel corners,
-    positions in the pixel, aperture samples and time)."""
+    """One camera pass's samples as a frozen step's input (``camera.CameraPass``'s; with
+    further rays on emitters' edges also what ``camera.shifted_ray`` reads)."""
     ray: mi.Ray3f
     weight: mi.Color3f
     pos: mi.Vector2f
@@ -44,11 +42,6 @@ class Cam:
     grid_pixel: mi.UInt32 = None
     box: bool = True
     film_rays: bool = True
-
-    def shifted_ray(self, shift, active=True):
-        ray, weight, pos_f = shifted_ray(self.sensor, self.corner, self.offset, self.aperture, self.time, shift,
-                                         active)
-        return ray, weight, (self.corner if self.box else pos_f)
 
 
 @dataclass
@@ -119,7 +112,7 @@ class Run:
         for name in (["iterations"] if self.image_iterations else []) + (["final"] if self.average else []):
             touch(frame.camera_block(name))   # made now: a frozen step must find them among its inputs
         if self.estimator is not None and self.estimator.edges is not None and not frame.film.rfilter().is_box_filter():
-            touch(frame.camera_block("emission"))     # (the emission's own block: display.emission_shares)
+            touch(frame.camera_block(frame.EMISSION))   # (the emission's own block: display.emission_shares)
         own_arrays(table, self.transport.direct, self.average, self.estimator, self.irradiance)
         # the frame's blocks (not its committed copies, which change; nor the film, whose
         # storage, untouched until the end, would be made opaque by the first step)
@@ -191,7 +184,7 @@ class Run:
             sampler = cam.sampler if self.uses_sampler else None
             cam.sampler.schedule_state()                # the camera's samples, not how they were drawn
             edges = self.estimator.edges is not None
-            further = (cam._corner, cam._offset, cam._aperture, mi.Float(cam._time), cam.grid_pixel) if edges \
+            further = (cam.corner, cam.offset, cam.aperture, mi.Float(cam.time), cam.grid_pixel) if edges \
                 else (None,) * 5
             dr.eval(cam.ray, cam.weight, cam.pos, *(x for x in further if x is not None))
             self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count,

@@ -235,7 +235,7 @@ def run_numbering(shipped, params, variant, task, threads=None):
     number the patches alike."""
     scene = _scene(shipped, params, variant, threads)
     try:
-        return tuple(tuple(r) for r in scene.integrator().patch_table(scene).dark_rounds)
+        return tuple(tuple(r) for r in _integrator(scene, task).patch_table(scene).dark_rounds)
     except Exception as error:
         raise _portable(error) from None
 
@@ -303,9 +303,9 @@ def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
     scene = _scene(shipped, params, variant, threads)
     try:
-        _integrator(scene, task)
+        integrator = _integrator(scene, task)
         _check_numbering(scene, average[2])
-        return scene.integrator().gather_from(scene, average[0], average[1], task.spp, task.seed)
+        return integrator.gather_from(scene, average[0], average[1], task.spp, task.seed)
     except Exception as error:
         raise _portable(error) from None
 
