@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import fingerprint, seeds, support
+from mi_plugins import collection, fingerprint, seeds, support
 from mi_plugins.params import Params
 from mi_plugins.integrators.camera import CameraPass
 from mi_plugins.progress import Progress, Steps
@@ -373,8 +373,9 @@ class CoreIntegrator(mi.SamplingIntegrator):
     def render_task(self, scene, task, sensor=0, seed=0, spp=0, develop=True):
         """A render of ``scene`` that does ``task`` (``frame.task``; None: the whole image):
         the entry point of the parts of a distributed render (:meth:`distributed_split`).
-        Returns the image, or ``frame.result`` where the task sets one (e.g. per-patch sums)."""
-        with fingerprint.held(scene):          # a render does not change its scene
+        Returns the image, or ``frame.result`` where the task sets one (e.g. per-patch sums).
+        No garbage collection meanwhile (:mod:`mi_plugins.collection`)."""
+        with fingerprint.held(scene), collection.paused():      # a render does not change its scene
             return self._render_task(scene, task, sensor, seed, spp, develop)
 
     def _render_task(self, scene, task, sensor, seed, spp, develop):

@@ -22,7 +22,7 @@ import time
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import fingerprint
+from mi_plugins import collection, fingerprint
 from mi_plugins.integrators import display
 from mi_plugins.integrators.core import CoreIntegrator, Frame
 
@@ -84,7 +84,12 @@ class SolutionIntegrator(CoreIntegrator):
         return solution
 
     def solve(self, scene, seed=0):
-        """The view-independent solution of ``scene``, complete (geometry, direct light)."""
+        """The view-independent solution of ``scene``, complete (geometry, direct light);
+        no garbage collection meanwhile (:mod:`mi_plugins.collection`)."""
+        with collection.paused():
+            return self._solve(scene, seed)
+
+    def _solve(self, scene, seed):
         self.check_scene(scene, None)
         solution = self.solution_for(scene, seed, self.patch_table(scene))
         return solution.complete(scene, self.table_of(scene, solution))

@@ -175,7 +175,9 @@ class StochasticRayIntegrator(CoreIntegrator):
         chain = [ray, power, depth]
         steps = self.steps(self.iterations, self.burn_in)
         # each averaged step's splats estimate the image once per chain and pixel
-        scale = lambda: frame.pixels / (chains * max(self.progress.averaged, 1))
+        # (not a closure over the frame, which keeps it: a reference cycle, mi_plugins.collection)
+        pixels, progress = frame.pixels, self.progress
+        scale = lambda: pixels / (chains * max(progress.averaged, 1))
         frame.light_block("light", scale)
         totals = []      # per averaged step: the light block's sum so far (for the drift check)
         ratios = []      # per step of the burn-in's second half: (power carried, power continued)

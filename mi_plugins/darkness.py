@@ -141,7 +141,8 @@ def split_in_the_dark(table, levels):
         before = table.front_count
         table = split_recorded(table, np.sort(split))
         room -= table.front_count - before
-    table.dark_base = base
+    if table is not base:         # (a table that is its own base keeps None: not a reference cycle)
+        table.dark_base = base
     return table
 
 
@@ -153,7 +154,8 @@ def replay_dark(table, rounds):
         split = table
         for patches in rounds:
             split = split_recorded(split, np.asarray(patches, np.int64))
-        split.dark_base = table
+        if split is not table:
+            split.dark_base = table
         _REPLAYED[:] = [(key, split, table)]          # (the base held: its id stays unique)
     return _REPLAYED[0][1]
 

@@ -196,7 +196,8 @@ class Solution:
         # (its shapes may load in another order); a file without dark splits: measured again
         if "dark_splits" in meta:
             meta["dark_splits"], dark = _renumbered(base, meta["dark_splits"], order, split_recorded)
-            dark.dark_base = base
+            if dark is not base:
+                dark.dark_base = base
         else:
             dark = split_in_the_dark(base, meta.get("dark_levels", 0))
         meta["refinements"], table = _renumbered(dark, meta.get("refinements") or [], order,

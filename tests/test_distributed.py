@@ -192,6 +192,18 @@ def test_ray_bundle_splits_its_chains_and_its_final_gathering(clients, scenes, t
     assert res.first_tasks == 0 and res.tasks == 2 and abs(res.image.mean() - 0.5) < 0.02
 
 
+def kill_soon(pid, delay=0.3):
+    """SIGKILL process ``pid`` after ``delay`` s (in a thread); the event is set once killed."""
+    killed = threading.Event()
+
+    def kill():
+        time.sleep(delay)
+        os.kill(pid, signal.SIGKILL)
+        killed.set()
+    threading.Thread(target=kill, daemon=True).start()
+    return killed
+
+
 def test_a_killed_worker_loses_nothing(clients, scenes):
     """One of two workers killed (SIGKILL, by its process id) while tasks run: Dask
     reruns its tasks elsewhere and the image equals the undisturbed one."""
@@ -199,19 +211,42 @@ def test_a_killed_worker_loses_nothing(clients, scenes):
     calm = distributed.render(scenes["path"], 16384, client=client, seed=9, tasks=16, progress=False).image
     pids = client.run(os.getpid)
     victim = sorted(pids.values())[0]
-    killed = threading.Event()
-
-    def kill():
-        time.sleep(0.3)
-        os.kill(victim, signal.SIGKILL)
-        killed.set()
-    threading.Thread(target=kill, daemon=True).start()
+    killed = kill_soon(victim)
     t0 = time.perf_counter()
     hurt = distributed.render(scenes["path"], 16384, client=client, seed=9, tasks=16, progress=False)
     assert killed.is_set(), "the render finished before the worker was killed (%.2f s)" % (time.perf_counter() - t0)
     assert victim not in client.run(os.getpid).values()
     assert np.array_equal(hurt.image, calm) and hurt.tasks_done == 16
     client.wait_for_workers(2, timeout=60)
+
+
+def test_a_lone_worker_killed_loses_nothing(clients, scenes, monkeypatch):
+    """The only worker killed while tasks run: the scene it held is lost with it, so its
+    tasks are cancelled; the scene is scattered again to the worker the nanny starts and
+    the tasks are submitted again: the undisturbed image. Test of the test: without
+    scattering again the render stops, naming the lost data."""
+    client = clients[1]
+    calm = distributed.render(scenes["path"], 4096, client=client, seed=9, tasks=8, progress=False).image
+
+    def hurt():
+        killed = kill_soon(next(iter(client.run(os.getpid).values())))
+        result = distributed.render(scenes["path"], 4096, client=client, seed=9, tasks=8, progress=False)
+        assert killed.is_set(), "the render finished before the worker was killed"
+        return result
+    try:
+        result = hurt()
+        assert np.array_equal(result.image, calm) and result.tasks_done == 8
+        client.wait_for_workers(1, timeout=60)
+
+        def scattered_once(self):
+            if self._future is None:
+                self._future = self.client.scatter([self.data], broadcast=True, hash=False)[0]
+            return self._future
+        monkeypatch.setattr(dask_engine.Shipped, "future", scattered_once)
+        with pytest.raises(dask_engine.TaskFailed, match="lost dependencies"):
+            hurt()
+    finally:
+        client.wait_for_workers(1, timeout=60)
 
 
 def test_a_task_the_scheduler_cancels_is_submitted_again(clients, scenes, monkeypatch):

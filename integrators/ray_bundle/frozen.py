@@ -25,28 +25,27 @@ ENABLED = True
 
 def jit_leaves(*objects):
     """Every Dr.Jit array, Dr.Jit struct (e.g. ``mi.PCG32``), dataclass and Mitsuba
-    object reachable from ``objects`` through attributes, lists, tuples and dicts."""
-    out, seen = [], set()
-
-    def walk(obj):
+    object reachable from ``objects`` through attributes, lists, tuples and dicts (depth
+    first, in order). A loop over a stack, not a recursive local function: such a function
+    is a reference cycle (it holds itself through its closure) that keeps what it found,
+    the scene's plugins among them, alive until the garbage collector runs, which may be
+    in another thread while a later render traces the same kind of plugin."""
+    out, seen, stack = [], set(), list(reversed(objects))
+    while stack:
+        obj = stack.pop()
         if obj is None or isinstance(obj, (bool, int, float, str, np.ndarray, type)) or id(obj) in seen \
                 or (dr.is_array_v(obj) and not dr.is_jit_v(obj)):
-            return
+            continue
         seen.add(id(obj))
         if dr.is_jit_v(obj) or isinstance(obj, mi.Object) or hasattr(type(obj), "DRJIT_STRUCT") \
                 or dataclasses.is_dataclass(obj):
             out.append(obj)
         elif isinstance(obj, (list, tuple)):
-            for item in obj:
-                walk(item)
+            stack.extend(reversed(obj))
         elif isinstance(obj, dict):
-            for item in obj.values():
-                walk(item)
+            stack.extend(reversed(list(obj.values())))
         elif hasattr(obj, "__dict__"):
-            for item in vars(obj).values():
-                walk(item)
-    for obj in objects:
-        walk(obj)
+            stack.extend(reversed(list(vars(obj).values())))
     return out
 
 
@@ -83,28 +82,32 @@ def own_arrays(*objects):
     that a previous render made Dr.Jit's own are kept (copying a 1 M-triangle scene's patch
     table again took 0.34 s a render)."""
     seen, made = set(), []
-
-    def fix(value):
-        if value is None or isinstance(value, (bool, int, float, str)):
-            return value
-        if dr.is_jit_v(value) and dr.width(value) > 0:
-            value = _owned(value)
-            made.append(value)
-            return value
-        if isinstance(value, list):
-            value[:] = [fix(v) for v in value]
-        elif isinstance(value, tuple) and not hasattr(type(value), "_fields"):
-            return tuple(fix(v) for v in value)
-        elif hasattr(value, "__dict__") and not isinstance(value, (mi.Object, type)) \
-                and not dataclasses.is_dataclass(value) and not hasattr(type(value), "DRJIT_STRUCT") \
-                and id(value) not in seen:
-            seen.add(id(value))
-            for key, item in list(vars(value).items()):
-                setattr(value, key, fix(item))
-        return value
     for obj in objects:
-        fix(obj)
+        _own_in(obj, seen, made)
     dr.eval(made)
+
+
+def _own_in(value, seen, made):
+    """``value`` with its Dr.Jit arrays owned (:func:`own_arrays`; new ones added to
+    ``made``; objects in ``seen`` done). A module function, not a local one: see
+    :func:`jit_leaves`."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if dr.is_jit_v(value) and dr.width(value) > 0:
+        value = _owned(value)
+        made.append(value)
+        return value
+    if isinstance(value, list):
+        value[:] = [_own_in(v, seen, made) for v in value]
+    elif isinstance(value, tuple) and not hasattr(type(value), "_fields"):
+        return tuple(_own_in(v, seen, made) for v in value)
+    elif hasattr(value, "__dict__") and not isinstance(value, (mi.Object, type)) \
+            and not dataclasses.is_dataclass(value) and not hasattr(type(value), "DRJIT_STRUCT") \
+            and id(value) not in seen:
+        seen.add(id(value))
+        for key, item in list(vars(value).items()):
+            setattr(value, key, _own_in(item, seen, made))
+    return value
 
 
 class FreezeFailed(RuntimeError):

@@ -1,10 +1,9 @@
 """The ``ray_bundle`` integrator: parameters and the iteration loop."""
-import gc
 
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
+from mi_plugins import collection, seeds
 from mi_plugins.integrators import display
 from mi_plugins.integrators.core import Frame
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
@@ -397,17 +396,13 @@ class RayBundleIntegrator(SolutionIntegrator):
         of an earlier scene freed between two frozen steps changes the instance registry
         that the steps recorded), and where a step cannot be recorded ``undo()`` and again
         with plain steps."""
-        collect = gc.isenabled()
-        gc.disable()
-        try:
-            return run(*args)
-        except frozen.FreezeFailed:
-            self.step_cache.failed()      # this scene and these settings: plain steps
-            undo()
-            return run(*args)
-        finally:
-            if collect:
-                gc.enable()
+        with collection.paused():
+            try:
+                return run(*args)
+            except frozen.FreezeFailed:
+                self.step_cache.failed()      # this scene and these settings: plain steps
+                undo()
+                return run(*args)
 
     def patch_table(self, scene):
         """The patches of ``scene`` (checked against the memory first), with back sides;
@@ -477,7 +472,8 @@ class RayBundleIntegrator(SolutionIntegrator):
                                      self.bidirectional, run.total + total + 2)
         steps = steps if steps is not None and not self.refine else self.steps(run.total, run.burn_in)
         if preview is not None:
-            run.after = lambda done: preview(self._solution(run, scene, table, seed), done, run.total)
+            # (the run is an argument, not in the closure: a run holding itself is a reference cycle)
+            run.after = lambda r, done: preview(self._solution(r, scene, table, seed), done, r.total)
         run.run(steps, directions)
         split = refine.choose(self, run, scene, seed) if self.refine and not self.progress.interrupted else ()
         if len(split):                   # the solve goes on on the refined patches
@@ -489,8 +485,8 @@ class RayBundleIntegrator(SolutionIntegrator):
             refine.map_direct(run.transport.direct, after.transport.direct, origin)
             state = refine.map_state(run.state, run.layout, after.layout, origin)
             if preview is not None:
-                after.after = lambda done: preview(self._solution(after, scene, refined, seed), done, after.total,
-                                                   refined)
+                after.after = lambda r, done: preview(self._solution(r, scene, refined, seed), done, r.total,
+                                                      refined)
             after.run(self.steps(after.total, after.burn_in), directions, state=state)
             run, table = after, refined
         return self._solution(run, scene, table, seed)

@@ -9,6 +9,7 @@ camera pass covers the chains of one group (:func:`.limits.camera_group`), so th
 samples fit in memory whatever the film's size.
 """
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import drjit as dr
@@ -68,7 +69,7 @@ class Run:
         self.integ, self.frame, split = integ, frame, frame.task
         scene, spp = frame.scene, 1 if solve_only else frame.spp
         self.solve_only = solve_only
-        self.after = None            # after(iterations so far): a preview, called after every step
+        self.after = None            # after(run, iterations so far): a preview, called after every step
         self.gather_only = split is not None and split.mode == "gather"
         limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
@@ -121,11 +122,24 @@ class Run:
         # the camera sampler is used inside a step only by the hand-off of delta lobes
         self.uses_sampler = self.estimator is not None and self.estimator.handoff is not None
         self.key = self._key(integ, frame, table)
-        self.advance, self.image = integ.step_cache.get(self.key, freezable(scene, frame.sensor)
-                                                        or not self.uses_sampler)
+        steps = integ.step_cache.get(self.key, freezable(scene, frame.sensor) or not self.uses_sampler)
+        # held weakly: the cache keeps the steps, and a frozen step keeps the run it last ran
+        # (Dr.Jit holds a frozen function's inputs), so holding them here would be a reference
+        # cycle that keeps the scene until a garbage collection (mi_plugins.collection)
+        self._advance_step, self._image_step = (weakref.ref(step) for step in steps)
         # the steps' inputs as every step leaves them (evaluated, literals made opaque, e.g. in
         # the scene's plugins): a step whose first call saw them otherwise records twice
         FrozenStep("_nothing", self.advance.frozen is not None)(self)
+
+    @property
+    def advance(self):
+        """The frozen advance step (see :class:`FrozenStep`)."""
+        return self._advance_step()
+
+    @property
+    def image(self):
+        """The frozen image step."""
+        return self._image_step()
 
     def _key(self, integ, frame, table):
         """Every Python value the frozen steps read (see FrozenStep)."""
@@ -260,7 +274,7 @@ class Run:
                 self.image_pass(last[0], incoming, "chain", m, "iterations")
             last[0] = new
 
-        after = (lambda m: self.after(m + 1)) if self.after else None
+        after = (lambda m: self.after(self, m + 1)) if self.after else None
         return last[0] if self.integ.run_steps(self.frame, steps, step, after) else None
 
     def final_gathering(self, steps, count):

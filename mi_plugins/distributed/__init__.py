@@ -106,14 +106,14 @@ def render(scene_file, spp, *, client=None, seed=0, params=None, tasks=None, pro
 def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress, workers):
     """The phases of :func:`mi_plugins.distributed.plan.phases` on ``client``: the first
     (if any) merged and broadcast to every task of the image phase."""
-    from mi_plugins.distributed.dask_engine import run_tasks
+    from mi_plugins.distributed.dask_engine import Shipped, run_tasks
     t0 = time.perf_counter()
     first, image_phase, spp_per_weight = plan.phases(scene.integrator(), scene, spp, tasks, seed)
     import mitsuba as mi
     from mi_plugins.distributed.dask_engine import set_variant_on
     variant = mi.variant()
     set_variant_on(client, variant)             # before any task: the workers import the package to unpickle one
-    remote = client.scatter(shipped, broadcast=True, hash=False)   # own key: never a released twin
+    remote = Shipped(client, shipped)
     shared = None
     if first is not None:
         # one worker's dark splits, replayed by every task: the per-patch sums add up
@@ -124,7 +124,7 @@ def _render(client, scene, shipped, params, spp, seed, tasks, threads, progress,
                                    first.name)
         if stopped:
             raise KeyboardInterrupt          # nothing of the image is made yet
-        shared = client.scatter(first.merge(found, first.tasks), broadcast=True, hash=False)
+        shared = Shipped(client, first.merge(found, first.tasks))
     found, stopped = run_tasks(client, image_phase.run, image_phase.tasks, ((remote, params, variant), threads, shared),
                                progress, image_phase.name)
     image, weight = plan.merge_passes(found, image_phase.tasks)
@@ -165,20 +165,20 @@ def render_views(scene_file, spp, *, sensors="all", client=None, seed=0, params=
     keeps = plan.keeps_solution(scene.integrator())
 
     def on(client):
-        from mi_plugins.distributed.dask_engine import run_tasks, set_variant_on
+        from mi_plugins.distributed.dask_engine import Shipped, run_tasks, set_variant_on
         t0 = time.perf_counter()
         workers = max(len(client.scheduler_info().get("workers", {})), 1)
         threads = getattr(client, "mi_plugins_threads", None)
         variant = mi.variant()
         set_variant_on(client, variant)
-        remote = client.scatter(shipped, broadcast=True, hash=False)
+        remote = Shipped(client, shipped)
         shared = None
         if keeps:
             found, stopped = run_tasks(client, plan.run_solve, [plan.Task("solve", 0, seed=int(seed))],
                                        ((remote, params, variant), threads), progress, "solve")
             if stopped:
                 raise KeyboardInterrupt
-            shared = client.scatter(found[0], broadcast=True, hash=False)
+            shared = Shipped(client, found[0])
         tasks = plan.view_tasks(sensors, spp, seed)
         found, stopped = run_tasks(client, plan.run_view, tasks, ((remote, params, variant), threads, shared),
                                    progress, "views")

@@ -5,10 +5,14 @@ new computation, never a cached result), collects the results as they complete (
 progress bar over all tasks), and returns them by task index, so the merge order never
 depends on which worker finished first. A worker lost mid-render is Dask's to handle: its
 tasks are rerun elsewhere, and as a task's result depends only on the task, the image is
-unchanged. A task whose future the scheduler cancels on its own (a key it forgot) is
-submitted again (``RESUBMITS`` times at most). A task that raises stops the render: the
-other tasks are cancelled and the task's exception is raised, with the task named. Ctrl-C
-cancels the outstanding tasks and returns what finished (``interrupted``).
+unchanged. The scene and a first phase's result reach the workers as :class:`Shipped`
+data: where every worker that held them is lost (a one-worker cluster whose worker
+died), the scheduler cancels the tasks that need them; the data is scattered again from
+this process's copy and the tasks are submitted again. A task whose future the scheduler
+cancels on its own (a key it forgot) is submitted again (``RESUBMITS`` times at most).
+A task that raises stops the render: the other tasks are cancelled and the task's
+exception is raised, with the task named. Ctrl-C cancels the outstanding tasks and
+returns what finished (``interrupted``).
 """
 import uuid
 
@@ -56,13 +60,34 @@ def _bar(total, desc, show):
     return tqdm(total=total, desc=desc, unit="task")
 
 
+class Shipped:
+    """``data`` scattered to every worker of ``client`` (own key: never a released twin);
+    :meth:`future` scatters it again where the workers holding it were lost."""
+
+    def __init__(self, client, data):
+        self.client, self.data, self._future = client, data, None
+
+    def future(self):
+        if self._future is None or self._future.status != "finished":
+            # (in a list: a tuple or a list would be scattered item by item)
+            self._future = self.client.scatter([self.data], broadcast=True, hash=False)[0]
+        return self._future
+
+
+def _resolved(values):
+    """``values`` with every :class:`Shipped` replaced by its current future."""
+    return tuple(v.future() if isinstance(v, Shipped) else v for v in values)
+
+
 #: a task whose future the scheduler cancels (not this client: a key it forgot, e.g. after a
-#: lost connection) is submitted again, this many times at most
+#: lost connection, or its shipped data lost with the workers that held it) is submitted
+#: again, this many times at most
 RESUBMITS = 2
 
 
 def run_tasks(client, fn, tasks, args, progress=True, desc="tasks"):
-    """Run ``fn(*args[0], task, *args[1:])`` for every task on ``client``: returns
+    """Run ``fn(*args[0], task, *args[1:])`` for every task on ``client`` (a
+    :class:`Shipped` value in ``args[0]`` or ``args[1:]`` is passed as its future): returns
     (results: index -> value, interrupted)."""
     from distributed import as_completed
     from distributed.client import FutureCancelledError
@@ -71,7 +96,7 @@ def run_tasks(client, fn, tasks, args, progress=True, desc="tasks"):
 
     def submit(task, attempt=0):
         key = "mi-plugins-%s-%s-%d" % (tag, task.kind, task.index) + ("-again%d" % attempt if attempt else "")
-        return client.submit(fn, *head, task, *tail, key=key, pure=False)
+        return client.submit(fn, *_resolved(head), task, *_resolved(tail), key=key, pure=False)
 
     futures = {submit(task): task for task in tasks}
     results, bar, again = {}, _bar(len(tasks), desc, progress), {}

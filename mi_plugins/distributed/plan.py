@@ -18,12 +18,15 @@ engine (the Dask runner in :mod:`.dask_engine` only submits and collects them).
 The worker functions (:func:`run_pass`, :func:`run_particles`) take the shipped scene
 (:mod:`.scene_bundle`) and keep the loaded scene per process for the next task.
 """
+import functools
+import gc
 import hashlib
 import pickle
 from dataclasses import dataclass
 
 import numpy as np
 
+from mi_plugins import collection
 from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
 
 #: fewest chains of a ray_bundle chain group: a group runs every iteration's kernels, so
@@ -166,6 +169,22 @@ def merge_chains(results, tasks):
 _LOADED = {}     # (bundle digest, parameters) -> scene, per worker process
 
 
+def worker_task(fn):
+    """A worker function run as every task runs: the garbage collector paused meanwhile
+    and run at its end in the task's own thread (:func:`mi_plugins.collection.task`), an
+    error sent back as :func:`_portable` makes it, raised after the collection without the
+    original (whose traceback would keep the task's frames, and what they hold, alive)."""
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        with collection.task():
+            try:
+                return fn(*args, **kwargs)
+            except Exception as error:
+                failed = _portable(error)
+        raise failed
+    return run
+
+
 def _scene(shipped, params, variant, threads):
     """The shipped scene, loaded once per worker process in the caller's ``variant``."""
     import drjit as dr
@@ -180,6 +199,7 @@ def _scene(shipped, params, variant, threads):
     key = (shipped.digest, tuple(sorted(params.items())))
     if key not in _LOADED:
         _LOADED.clear()                  # one scene per worker at a time: bounded memory
+        gc.collect()                     # the last scene freed here, not while the next one traces
         # the shapes, hence the patches, in the file's order on every worker: sequential
         # loading, and no merging of meshes that share a BSDF (Mitsuba's optimisation
         # merges them in an order that differs from load to load; the first phase's
@@ -228,16 +248,14 @@ def numbering(scene):
     return shape_order(scene) + " " + hashlib.sha1(json.dumps(table.dark_rounds).encode()).hexdigest()[:16]
 
 
+@worker_task
 def run_numbering(shipped, params, variant, task, threads=None):
     """The patches split in the dark by this worker's integrator (``darkness``: a tuple
     of rounds), which every task of a two-phase render replays: workers whose
     acceleration structures judge grazing rays otherwise (another build, another CPU)
     number the patches alike."""
     scene = _scene(shipped, params, variant, threads)
-    try:
-        return tuple(tuple(r) for r in _integrator(scene, task).patch_table(scene).dark_rounds)
-    except Exception as error:
-        raise _portable(error) from None
+    return tuple(tuple(r) for r in _integrator(scene, task).patch_table(scene).dark_rounds)
 
 
 def with_dark(tasks, rounds):
@@ -262,19 +280,17 @@ def _check_numbering(scene, expected):
                          "first phase (other patches split in the dark); the sums cannot be read here")
 
 
+@worker_task
 def run_pass(shipped, params, variant, task, threads=None, particles=None):
     """Render one pass; ``particles`` = (deposits, paths) for qmc_lighttrace's gather passes."""
     import mitsuba as mi
     scene = _scene(shipped, params, variant, threads)
     integrator = _integrator(scene, task)
-    try:
-        if particles is not None:
-            _check_numbering(scene, particles[2])
-            return np.array(integrator.render_with_particles(scene, particles[0], particles[1], task.spp, task.seed),
-                            dtype=np.float64)
-        return np.array(mi.render(scene, spp=task.spp, seed=task.seed), dtype=np.float64)
-    except Exception as error:
-        raise _portable(error) from None
+    if particles is not None:
+        _check_numbering(scene, particles[2])
+        return np.array(integrator.render_with_particles(scene, particles[0], particles[1], task.spp, task.seed),
+                        dtype=np.float64)
+    return np.array(mi.render(scene, spp=task.spp, seed=task.seed), dtype=np.float64)
 
 
 def _portable(error):
@@ -290,26 +306,23 @@ def _portable(error):
         return RuntimeError("%s: %s" % (type(cause).__name__, cause))
 
 
+@worker_task
 def run_chains(shipped, params, variant, task, threads=None):
     """ray_bundle: the average sums and counts of one group of chains."""
     scene = _scene(shipped, params, variant, threads)
-    try:
-        return _integrator(scene, task).chain_averages(scene, task.seed, task.spp, task.count), numbering(scene)
-    except Exception as error:
-        raise _portable(error) from None
+    return _integrator(scene, task).chain_averages(scene, task.seed, task.spp, task.count), numbering(scene)
 
 
+@worker_task
 def run_gathering(shipped, params, variant, task, threads=None, average=None):
     """ray_bundle: the image of one group of final-gathering passes from ``average``."""
     scene = _scene(shipped, params, variant, threads)
-    try:
-        integrator = _integrator(scene, task)
-        _check_numbering(scene, average[2])
-        return integrator.gather_from(scene, average[0], average[1], task.spp, task.seed)
-    except Exception as error:
-        raise _portable(error) from None
+    integrator = _integrator(scene, task)
+    _check_numbering(scene, average[2])
+    return integrator.gather_from(scene, average[0], average[1], task.spp, task.seed)
 
 
+@worker_task
 def run_particles(shipped, params, variant, task, threads=None):
     """The deposits of one range of qmc_lighttrace's particle phase."""
     scene = _scene(shipped, params, variant, threads)
@@ -329,23 +342,19 @@ def view_tasks(sensors, spp, seed):
     return [Task("view", k, spp=int(spp), seed=int(seed), start=int(s)) for k, s in enumerate(sensors)]
 
 
+@worker_task
 def run_solve(shipped, params, variant, task, threads=None):
     """The scene's solution, as the bytes of its file (shipped once to every view task)."""
     scene = _scene(shipped, params, variant, threads)
-    try:
-        return scene.integrator().solve(scene, task.seed).to_bytes()
-    except Exception as error:
-        raise _portable(error) from None
+    return scene.integrator().solve(scene, task.seed).to_bytes()
 
 
+@worker_task
 def run_view(shipped, params, variant, task, threads=None, solution=None):
     """The image (float32) of one sensor, from the shipped ``solution`` where there is one."""
     import mitsuba as mi
     from mi_plugins.solution import Solution
     scene = _scene(shipped, params, variant, threads)
-    try:
-        if solution is not None:
-            scene.integrator().use_solution(Solution.from_bytes(solution, scene))
-        return np.array(mi.render(scene, sensor=task.start, spp=task.spp, seed=task.seed), dtype=np.float32)
-    except Exception as error:
-        raise _portable(error) from None
+    if solution is not None:
+        scene.integrator().use_solution(Solution.from_bytes(solution, scene))
+    return np.array(mi.render(scene, sensor=task.start, spp=task.spp, seed=task.seed), dtype=np.float32)
