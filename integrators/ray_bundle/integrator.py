@@ -153,7 +153,7 @@ class RayBundleIntegrator(SolutionIntegrator):
          patch (the Bekaert box: 0.6 % low with true)
      * - patch_size
        - float
-       - scene diagonal / 24, at least 2 x the line spacing
+       - scene diagonal / 24; with ``display`` 'gather' at least 2 x the line spacing
        - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
          mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64),
          whatever the modelling. Radiance is constant per patch: a smaller h lowers the
@@ -374,11 +374,17 @@ class RayBundleIntegrator(SolutionIntegrator):
         return total + (total - burn_in if self.average_diffuse else 0)
 
     def patch_size_for(self, scene):
-        """``patch_size``, or by default the scene's diagonal / 24, or twice the bundle's
-        line spacing if that is larger (a patch narrower than the lines' spacing is missed
-        by most bundles: noise only)."""
+        """``patch_size``, or by default the scene's diagonal / 24 (``qmc_lighttrace``'s);
+        with final gathering at least twice the bundle's line spacing (a patch narrower than
+        the lines' spacing is missed by most bundles, and the gather only reads the patches
+        after a bounce: noise only). A display from the solution shows the patches: there
+        the finer patches' bias matters more than their noise (``cornell_closed``, 128 px,
+        the smooth display: 0.52x -> 0.41x ``path``'s error at an equal second, the bias at
+        128 iterations 0.0056 -> 0.0016)."""
         if self.patch_size is not None:
             return self.patch_size
+        if self.display != "gather":
+            return default_patch_size(scene)
         lo, hi = scene_bounds(scene)
         spacing = float(np.linalg.norm(hi - lo)) / self.resolution       # 2 x radius / resolution
         return max(default_patch_size(scene), 2.0 * spacing)
