@@ -87,12 +87,9 @@ class SolutionIntegrator(CoreIntegrator):
         """The view-independent solution of ``scene``, complete (geometry, direct light);
         no garbage collection meanwhile (:mod:`mi_plugins.collection`)."""
         with collection.paused():
-            return self._solve(scene, seed)
-
-    def _solve(self, scene, seed):
-        self.check_scene(scene, None)
-        solution = self.solution_for(scene, seed, self.patch_table(scene))
-        return solution.complete(scene, self.table_of(scene, solution))
+            self.check_scene(scene, None)
+            solution = self.solution_for(scene, seed, self.patch_table(scene))
+            return solution.complete(scene, self.table_of(scene, solution))
 
     def table_of(self, scene, solution):
         """The patches ``solution`` is numbered by: its recorded dark splits (this process's

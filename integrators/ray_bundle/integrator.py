@@ -3,7 +3,7 @@
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import collection, seeds
+from mi_plugins import seeds
 from mi_plugins.integrators import display
 from mi_plugins.integrators.core import Frame
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
@@ -379,7 +379,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         the lines' spacing is missed by most bundles, and the gather only reads the patches
         after a bounce: noise only). A display from the solution shows the patches: there
         the finer patches' bias matters more than their noise (``cornell_closed``, 128 px,
-        the smooth display: 0.52x -> 0.41x ``path``'s error at an equal second, the bias at
+        the smooth display: 0.52x -> 0.42x ``path``'s error at an equal second, the bias at
         128 iterations 0.0056 -> 0.0016)."""
         if self.patch_size is not None:
             return self.patch_size
@@ -398,17 +398,17 @@ class RayBundleIntegrator(SolutionIntegrator):
         self._guarded(self._render_frame, frame.rollback, frame)
 
     def _guarded(self, run, undo, *args):
-        """``run(*args)`` with frozen steps: no garbage collection meanwhile (a Mitsuba object
-        of an earlier scene freed between two frozen steps changes the instance registry
-        that the steps recorded), and where a step cannot be recorded ``undo()`` and again
-        with plain steps."""
-        with collection.paused():
-            try:
-                return run(*args)
-            except frozen.FreezeFailed:
-                self.step_cache.failed()      # this scene and these settings: plain steps
-                undo()
-                return run(*args)
+        """``run(*args)`` with frozen steps, and where a step cannot be recorded ``undo()``
+        and again with plain steps. (Every caller is inside a render or a solve, which pause
+        the garbage collector, :mod:`mi_plugins.collection`: a Mitsuba object of an earlier
+        scene freed between two frozen steps would change the instance registry that the
+        steps recorded.)"""
+        try:
+            return run(*args)
+        except frozen.FreezeFailed:
+            self.step_cache.failed()      # this scene and these settings: plain steps
+            undo()
+            return run(*args)
 
     def patch_table(self, scene):
         """The patches of ``scene`` (checked against the memory first), with back sides;
