@@ -249,6 +249,27 @@ def test_a_lone_worker_killed_loses_nothing(clients, scenes, monkeypatch):
         client.wait_for_workers(1, timeout=60)
 
 
+def test_a_render_uses_only_its_own_client(clients, scenes, monkeypatch):
+    """A render on one client of several (here the module's three) tracks its tasks on
+    that client's event loop, never on Dask's default client (the newest one): a task
+    waited for again there after its data was lost failed as 'bound to a different event
+    loop'. Made strict by taking the default client away. Test of the test: tracking on
+    the default client's loop fails."""
+    import distributed as dd
+    import distributed.client as dc
+    calm = distributed.render(scenes["path"], 16, client=clients[1], seed=3, tasks=2, progress=False).image
+
+    def no_default():
+        raise ValueError("no default client")
+    monkeypatch.setattr(dc, "default_client", no_default)
+    alone = distributed.render(scenes["path"], 16, client=clients[1], seed=3, tasks=2, progress=False)
+    assert np.array_equal(alone.image, calm)
+    tracked = dd.as_completed
+    monkeypatch.setattr(dd, "as_completed", lambda futures, loop=None: tracked(futures))
+    with pytest.raises(ValueError, match="no default client"):
+        distributed.render(scenes["path"], 16, client=clients[1], seed=3, tasks=2, progress=False)
+
+
 def test_a_task_the_scheduler_cancels_is_submitted_again(clients, scenes, monkeypatch):
     """A future cancelled without this render asking (the scheduler forgot its key: a
     run of the suite once lost a task so) is submitted again: the same image. Test of the

@@ -100,7 +100,10 @@ def run_tasks(client, fn, tasks, args, progress=True, desc="tasks"):
 
     futures = {submit(task): task for task in tasks}
     results, bar, again = {}, _bar(len(tasks), desc, progress), {}
-    running = as_completed(list(futures))
+    # on this client's event loop: by default Dask tracks the futures on its default
+    # client's loop (the newest client), and a future waited for again there, after a
+    # gather that found its data lost, fails as bound to a different event loop
+    running = as_completed(list(futures), loop=client.loop)
     try:
         for future in running:
             task = futures.pop(future)
