@@ -109,7 +109,9 @@ def refuse_classes(integrator, scene, classes, why, instead):
 def refuse_shapes_without_patches(integrator, scene):
     """Raise :class:`Unsupported` for a shape that is neither a triangle mesh nor one of
     the analytic shapes divided into patches (``rectangle``, ``disk``, ``sphere``,
-    ``cylinder``: :mod:`mi_plugins.tessellation`), for the finite-element integrators."""
+    ``cylinder``: :mod:`mi_plugins.tessellation`), or one whose ``to_world`` Mitsuba
+    itself does not follow (:func:`~mi_plugins.tessellation.distortion`), for the
+    finite-element integrators."""
     from mi_plugins import tessellation
     from mi_plugins.meshtable import _is_mesh
     for shape in scene.shapes():
@@ -120,6 +122,13 @@ def refuse_shapes_without_patches(integrator, scene):
                 "%s stores light per patch, and only triangle meshes and Mitsuba's %s are divided into patches"
                 % (integrator, ", ".join(sorted(k.lower() for k in tessellation.KINDS))),
                 "convert the shape to a triangle mesh (a 'ply' or 'obj' file), or render with Mitsuba's 'path'")
+        reason = tessellation.distortion(shape) if not _is_mesh(shape) else None
+        if reason:
+            name = tessellation.shape_kind(shape).lower()
+            raise Unsupported(
+                integrator, name, "the shape '%s' (id '%s')" % (name, shape.id()), reason,
+                "give it a uniform scale (a sphere: its 'center' and 'radius'; a cylinder: the same scale along "
+                "its first two axes, any along its length), or make it a triangle mesh")
 
 
 def refuse_one_direction_emitters(integrator, scene):

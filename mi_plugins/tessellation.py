@@ -46,6 +46,39 @@ def shape_kind(shape):
     return str(shape).split("[", 1)[0].strip() or type(shape).__name__
 
 
+#: relative tolerance of the checks of a sphere's or a cylinder's ``to_world`` (Mitsuba warns
+#: beyond about 1e-6)
+SCALE_TOLERANCE = 1e-4
+
+
+def distortion(shape):
+    """Why the patches of analytic ``shape`` cannot follow Mitsuba's surface, or None: a
+    ``sphere`` whose ``to_world`` scales its axes differently or shears (Mitsuba 3.9.1
+    warns, intersects a sphere of the first axis' length and returns hits whose uv do not
+    lie on it: 57 of 1000 NaN), a ``cylinder`` whose cross-section is not a circle
+    (Mitsuba intersects the ellipse but takes the first axis as the radius of its surface
+    area, by which the patches' areas and its own light samples are scaled)."""
+    kind = shape_kind(shape)
+    if kind not in ("Sphere", "Cylinder"):
+        return None
+    m = np.array(mi.traverse(shape)["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, :3]
+    lengths = np.linalg.norm(m, axis=0)
+    gram = m.T @ m / np.maximum(np.outer(lengths, lengths), 1e-300)
+    axes = (0, 1, 2) if kind == "Sphere" else (0, 1)
+    sheared = np.abs(gram - np.diag(np.diag(gram))).max() > SCALE_TOLERANCE
+    uneven = np.ptp(lengths[list(axes)]) > SCALE_TOLERANCE * lengths[list(axes)].max()
+    if not (sheared or uneven):
+        return None
+    what = "scales its axes by %s" % ", ".join("%.4g" % x for x in lengths) if uneven else "shears"
+    if kind == "Sphere":
+        return ("its to_world %s: Mitsuba warns, intersects a sphere of radius %.4g and gives its hits "
+                "surface coordinates (uv) that do not lie on it, while the patches are laid out by them"
+                % (what, lengths[0]))
+    return ("its to_world %s: Mitsuba warns, intersects an elliptic or sheared tube but takes %.4g as "
+            "the radius of its surface area, which scales the patches' areas and Mitsuba's own light "
+            "samples on it" % (what, lengths[0]))
+
+
 def local_point(kind, uv):
     """Local position and normal of the points with parameters ``uv`` on shapes of
     ``kind`` (JIT arrays, per lane)."""

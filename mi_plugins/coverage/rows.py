@@ -446,6 +446,14 @@ def _case_rows():
                 reference_runs=32),
             Row("case:negative_emission", None, negative, note="an area light of radiance -2 beside the stage light"),
             Row("case:flip_normals", None, flipped, note="the floor wound downward, with flip_normals"),
+            Row("case:sphere_uneven_scale", None, lambda r: stage(r, subject={
+                "type": "sphere", "to_world": mi.ScalarTransform4f().translate([0, 0.3, 0]).scale([0.45, 0.3, 0.3]),
+                "bsdf": diffuse(0.5)}), note="a sphere whose to_world scales its axes unevenly (Mitsuba warns and "
+                                             "renders a sphere of the first axis' radius)"),
+            Row("case:cylinder_elliptic", None, lambda r: stage(r, subject={
+                "type": "cylinder", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale([0.2, 0.35, 0.6]),
+                "bsdf": diffuse(0.5)}), note="an open cylinder of elliptic cross-section (Mitsuba warns; its surface "
+                                             "area is a circle's)"),
             Row("case:open_many_emitters", None, open_many_emitters, max_depth=4,
                 note="large one-sided rectangle planes of albedo 1, seven emitters, max_depth 4 (after Mitsuba's "
                      "own emitter render tests)")]
