@@ -142,9 +142,10 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
        - int
        - 2
        - >= 0: split the patches that lie partly in the dark (under an object resting on
-         them, inside a closed object, past a floor or ceiling they run through) this many
-         times along the boundary, so that the solution's displays do not show the lit part
-         darkened by the dark one (``mi_plugins.darkness``); 0: the patches as they are
+         them, inside a closed object, past a floor or ceiling they run through) or that a
+         surface standing on them cuts (a thin panel on a floor) this many times along the
+         boundary, so that the solution's displays neither show the lit part darkened by
+         the dark one nor carry light past the panel (``mi_plugins.darkness``); 0: the patches as they are
      * - display
        - string
        - ``'gather'``

@@ -412,7 +412,8 @@ def _join(parts, keys):
 
 def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None, dark_levels=0):
     """The :class:`MeshTable` of ``scene`` with these settings, its patches split
-    ``dark_levels`` times where they lie partly in the dark (:mod:`mi_plugins.darkness`),
+    ``dark_levels`` times where they lie partly in the dark or a surface cuts them
+    (:mod:`mi_plugins.darkness`),
     built again only when the scene object, its content (``mi_plugins.fingerprint``) or
     the settings differ from the last call's; ``before_build()`` (e.g. a memory check that
     predicts the patch count: seconds on a million triangles) is called only when a table

@@ -99,8 +99,11 @@ def test_splits_narrow_the_straddling_band_and_keep_the_surface():
     assert split.areas_np[after].sum() < table.areas_np[darkness.straddling(
         darkness.dark_fractions(table))].sum() and before > 0
     assert darkness.split_in_the_dark(table, 0) is table
-    # a scene without dark parts is left as it is
-    open_floor = mi.load_dict(room(block=False, sky=True))
+    # a scene without dark parts or surfaces crossing a patch is left as it is (the wall
+    # stands on the floor's edge)
+    d = room(block=False, sky=True)
+    d["wall"]["to_world"] = T().translate([0, 1, -1])
+    open_floor = mi.load_dict(d)
     plain = MeshTable(open_floor, "test", h=0.25)
     assert darkness.split_in_the_dark(plain, 2).front_count == plain.front_count
 
@@ -139,6 +142,59 @@ def test_the_patches_display_is_right_where_the_floor_and_ceiling_cross_the_wall
     budget.close(mean, ref, np.hypot(se, ref_se), what="patches display with dark_levels=2 / path")
     bad, bad_se = _mean_and_se(scene, dict(settings, dark_levels=0), 4, 24, 41)
     assert bad - ref < -4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
+
+
+def panel_on_floor(lift=0.0, resolution=16):
+    """A floor, a thin twosided panel standing on it (``lift`` above it), a lamp behind
+    the panel facing it, the camera in front: the floor in front of the panel is lit
+    around its edges only, the floor behind it brightly; one floor patch under the panel
+    would carry the light behind it to the front."""
+    return {"type": "scene",
+            "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3), "bsdf": diffuse(0.5)},
+            "panel": {"type": "rectangle", "to_world": T().translate([0, 0.8 + lift, 0]).scale(0.8),
+                      "bsdf": diffuse(0.8, twosided=True)},
+            "lamp": {"type": "rectangle", "to_world": T().translate([0, 0.8, -1]).scale(0.3),
+                     "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [20, 20, 20]}}},
+            "sensor": {"type": "perspective", "fov": 45,
+                       "to_world": T().look_at(origin=[0, 1, 4], target=[0, 0.5, 0], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
+                                "rfilter": {"type": "box"}}}}
+
+
+def test_a_panel_standing_on_a_floor_cuts_the_patches_under_it():
+    """The floor patches the panel stands across are found (partly cut off from their own
+    middle point), and only they; a panel lifted above the floor cuts nothing, nor do the
+    panel's own patches or a curved sphere's cells (test of the test)."""
+    table = MeshTable(mi.load_dict(panel_on_floor()), "test", h=0.2)
+    floor = table.shape_index_np[:table.front_count] == [s.id() for s in table.shapes].index("floor")
+    cut = darkness.straddling(darkness.cut_fractions(table))
+    assert len(cut) > 0 and floor[cut].all()
+    assert len(cut) <= 2 * int(np.ceil(1.6 / 0.2)) + 2    # one row of floor patches along the panel (1.6 wide)
+    lifted = MeshTable(mi.load_dict(panel_on_floor(lift=0.05)), "test", h=0.2)
+    assert len(darkness.straddling(darkness.cut_fractions(lifted))) == 0
+    ball = MeshTable(mi.load_dict({"type": "scene", "s": {"type": "sphere", "radius": 0.5, "bsdf": diffuse()}}),
+                     "test", h=0.1)
+    assert len(darkness.straddling(darkness.cut_fractions(ball))) == 0
+
+
+def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
+    """qmc_lighttrace's gather display (it reads the floor patches' light after a bounce)
+    matches path within the noise with the cut patches split; without the cut (only the
+    dark splits) the floor patches under the panel carry the light behind it to the front
+    and the image is about 16 % too bright (test of the test)."""
+    from mi_plugins import meshtable
+    scene = panel_on_floor()
+    ref, ref_se = _mean_and_se(scene, {"type": "path"}, 1024, 8, 50)
+    # (the default patches: the panel's line runs through a row of the floor's)
+    settings = {"type": "qmc_lighttrace", "samples": 100000}
+    mean, se = _mean_and_se(scene, settings, 8, 16, 51)
+    budget.close(mean, ref, np.hypot(se, ref_se), what="gather with the cut patches split / path")
+    meshtable._LAST.clear()
+    with monkeypatch.context() as patch:
+        patch.setattr(darkness, "cut_fractions", lambda table, *a: np.zeros((table.front_count, 2)))
+        bad, bad_se = _mean_and_se(scene, settings, 8, 16, 51)
+    meshtable._LAST.clear()
+    assert bad - ref > 4 * np.hypot(bad_se, ref_se) and bad > 1.08 * ref, (bad, ref, bad_se, ref_se)
 
 
 @pytest.mark.parametrize("degree", [1, 2])
