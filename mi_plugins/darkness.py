@@ -27,9 +27,10 @@ panel lights one part only), and the patch's one average carries that light past
 panel: a light leak (a floor under a twosided panel with the lamp behind it: the image
 in front of the panel +16 % with the gather display, +14 % and +31 % with the smooth
 displays of ``qmc_lighttrace`` and ``ray_bundle``). :func:`cut_fractions` finds the points
-of a side that a steep surface separates from the side's middle point. Split twice,
-the gather display is right there again (+0.2 %), the smooth displays keep +4 % and +6 %
-(their field is continuous across the panel's line, over the split patches' band).
+of a side that a steep surface separates from the side's middle point. Split, the gather
+display is right there again (+0.2 %); the smooth field's vertices on the panel's line
+are not shared across it either (:func:`mi_plugins.patchfield.separate`): +1.7 % and
++1.8 % in the smooth displays.
 
 :func:`split_in_the_dark` splits the front patches with a side that is partly dark and
 partly not, or partly cut (``MeshTable.refined``), ``levels`` times, within

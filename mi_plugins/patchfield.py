@@ -7,7 +7,8 @@ smooth display and the exported meshes show the field reconstructed from them:
 - **vertices**: the corners of the patches (mesh triangles and their sub-triangles; the
   uv corners of the cells of analytic shapes), welded where they coincide in space and
   the patches' normals agree within :data:`WELD_ANGLE` (a crease, e.g. a floor meeting a
-  wall, keeps a vertex per surface), across sub-triangles, triangles and shapes alike;
+  wall, keeps a vertex per surface), across sub-triangles, triangles and shapes alike,
+  except across a surface standing on them (:func:`separate`: a panel on a floor);
 - **vertex values**: at each vertex, an area-weighted least-squares plane through the
   values of the patches that share it, taken at their centroids, evaluated at the
   vertex; where those do not span the plane (the corner of a quad, the inside of a
@@ -106,6 +107,36 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         next_id += len(groups)
 
 
+def separate(scene, vertex, centres, normals, scale):
+    """``vertex`` (N,) with the corners whose element a surface standing on the patches
+    separates from the vertex's first element given a vertex of their own: the segment
+    between the two elements' centres, just off their surface, meets a surface steeper
+    than 30 degrees to them (a panel standing on a floor whose elements run under it:
+    the floor's field on either side is fitted from that side's patches, instead of
+    carrying the lit side's light across the panel's line)."""
+    n = len(vertex)
+    if not n:
+        return vertex
+    order = np.argsort(vertex, kind="stable")
+    first = np.empty(int(vertex.max()) + 1, np.int64)
+    first[vertex[order[::-1]]] = order[::-1]          # the first corner of each vertex
+    lead = first[vertex]
+    eps = 1e-5 * (1.0 + float(scale))
+    start, end = centres + normals * eps, centres[lead] + normals[lead] * eps
+    span = end - start
+    length = np.linalg.norm(span, axis=1)
+    go = length > 0
+    ray = mi.Ray3f(mi.Point3f(*(mi.Float(start[:, c]) for c in range(3))),
+                   mi.Vector3f(*(mi.Float(span[:, c] / np.where(go, length, 1.0)) for c in range(3))))
+    ray.maxt = mi.Float(length * (1.0 - 1e-4))
+    hit = scene.ray_intersect(ray, mi.RayFlags.Minimal, False, mi.Bool(go))
+    facing = np.abs(np.einsum("ij,ji->i", normals, np.array(hit.n, dtype=np.float64)))
+    apart = go & np.array(hit.is_valid()) & (facing < np.cos(np.radians(30.0)))
+    if not apart.any():
+        return vertex
+    return np.unique(vertex * 2 + apart, return_inverse=True)[1].ravel()
+
+
 #: the entries (i, j), i <= j, of a symmetric 3 x 3 matrix, in the order _inverses reads them
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -169,6 +200,7 @@ class PatchField:
         del corners
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0
         ids = weld(points, self.element_normals[element_of], extent)
+        ids = separate(table.scene, ids, el["centre"][element_of], self.element_normals[element_of], extent)
         self.vertex_ids = np.zeros((self.elements, 4), np.int64)
         self.vertex_ids[used] = ids
         self.vertex_count = int(ids.max()) + 1 if len(ids) else 0

@@ -122,6 +122,20 @@ def _world(frame, kind, u, v):
     return np.array(p, dtype=np.float64).T, np.array(n, dtype=np.float64).T
 
 
+def cell_centres(kind, bounds, columns):
+    """numpy (n, 3) world centres and normals of the cells ``bounds`` (n, 4: u0, u1, v0,
+    v1) of shapes of ``kind`` with frames ``columns`` (n, 21: :class:`ShapeFrame`): the
+    points of median area in u and in v (a disk's rings and a sphere's bands are not
+    uniform in their parameters)."""
+    u0, u1, v0, v1 = np.asarray(bounds, dtype=np.float64).T
+    mid_u = np.sqrt(0.5 * (u0 ** 2 + u1 ** 2)) if kind == 2 else 0.5 * (u0 + u1)
+    mid_v = (np.arccos(0.5 * (np.cos(np.pi * v0) + np.cos(np.pi * v1))) / np.pi) if kind == 3 else 0.5 * (v0 + v1)
+    uv = mi.Point2f(mid_u.astype(np.float32), mid_v.astype(np.float32))
+    cols = [mi.Float(np.asarray(columns[:, k], dtype=np.float32)) for k in range(21)]
+    p, n = ShapeFrame.apply(cols, *local_point(mi.UInt32(kind), uv))
+    return np.array(p, dtype=np.float64).T.reshape(-1, 3), np.array(n, dtype=np.float64).T.reshape(-1, 3)
+
+
 def _count(length, h, lo=1):
     return int(np.clip(np.ceil(length / h), lo, MAX_CELLS))
 
@@ -152,9 +166,7 @@ class ShapePatches:
         self.bounds = np.stack([u0, u1, v0, v1], axis=1)
         self.surface_area = float(dr.slice(shape.surface_area()))
         self.areas = area_share(kind, self.bounds) * self.surface_area
-        mid_u = np.sqrt(0.5 * (u0 ** 2 + u1 ** 2)) if kind == 2 else 0.5 * (u0 + u1)
-        mid_v = (np.arccos(0.5 * (np.cos(np.pi * v0) + np.cos(np.pi * v1))) / np.pi) if kind == 3 else 0.5 * (v0 + v1)
-        self.centres, self.normals = _world(self.frame, kind, mid_u, mid_v)
+        self.centres, self.normals = cell_centres(kind, self.bounds, np.tile(self.frame.columns, (len(u0), 1)))
 
     @property
     def count(self):

@@ -411,3 +411,25 @@ def test_the_finite_element_integrators_refuse_them(integrator):
         assert "give it a uniform scale" in text, text
     image = mi.render(scene(SHAPES["sphere_rotated"]), integrator=mi.load_dict(dict(type=integrator, **small)), spp=1)
     assert np.isfinite(np.array(image)).all()
+
+
+@pytest.mark.parametrize("name", ["rectangle", "disk", "sphere", "cylinder_long"])
+def test_split_cells_have_their_own_centres(name):
+    """The children of a split analytic cell lie on the surface at their own middle (the
+    smooth field's planes are fitted through them), not at their parent's; a split
+    rectangle's children average to the parent's centre."""
+    table = MeshTable(mi.load_dict({"type": "scene", "s": SHAPES[name]}), "test", h=0.3)
+    split = table.refined(np.arange(min(4, table.front_count)))[0]
+    el = split.elements_np
+    children = np.flatnonzero(el["leaf"] & (el["depth"] > 0))
+    assert len(children) == 4 * min(4, table.front_count)
+    centres = el["centre"][children]
+    assert len(np.unique(np.round(centres, 6), axis=0)) == len(children)
+    si = split.surface_interaction(mi.UInt32(el["patch"][children].astype(np.uint32)), mi.Point2f(0.5, 0.5))
+    hit = split.scene.ray_intersect(mi.Ray3f(mi.Point3f(centres.T + 0.01 * el["normal"][children].T),
+                                            mi.Vector3f(-el["normal"][children].T)))
+    assert np.abs(np.array(hit.p).T - centres).max() < 1e-4
+    if name == "rectangle":
+        parent = table.elements_np["centre"][:1]
+        assert np.abs(centres[:4].mean(axis=0) - parent).max() < 1e-5
+    del si
