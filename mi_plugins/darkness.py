@@ -56,6 +56,8 @@ STRAY_RAYS = 2
 LIGHT_SAMPLES = 4
 #: the fixed seed of the measurement (a table is the same at every build)
 SEED = 0x5EED
+#: the segments of the cut test run this share of the patch's size above it
+CUT_HEIGHT = 0.25
 #: a surface crossing a patch cuts it where it stands steeper than 30 degrees to the patch's plane
 CUT_COSINE = float(np.cos(np.radians(30.0)))
 #: the default ``dark_levels`` of the finite-element integrators
@@ -150,14 +152,20 @@ def dark_fractions(table, points=POINTS, directions=DIRECTIONS):
 def cut_fractions(table, points=POINTS):
     """numpy (front_count, 2), as :func:`dark_fractions`: the share of each patch side's
     points cut off from one of them (the point nearest the middle of the grid) by a
-    surface that crosses the patch: the segment between the two, just off that side,
-    meets a surface more than 30 degrees from the patch's plane (a wall, or a thin panel,
-    standing on a floor whose patch runs under it). The parts of such a patch receive
+    surface that crosses the patch: the segment between the two, ``CUT_HEIGHT`` of the
+    patch's size above that side, meets a surface more than 30 degrees from the patch's
+    plane (a wall, or a thin panel, standing on a floor whose patch runs under it, or
+    just above it). The parts of such a patch receive
     different light (one side of the panel lit, the other in its shadow), which one
     average would carry across the panel: a light leak. Surfaces nearly parallel to the
     patch (its own curvature, a rug on it) do not cut it."""
+    from mi_plugins.refinement import patch_sizes
     scene = table.scene
     si, n_side, origin, _, sides, grid, backs = _side_points(table, points)
+    # the segments run a quarter of the patch's size above it: a panel standing just
+    # above the floor (a gap the light hardly passes) cuts the patch too
+    size = patch_sizes(table)[np.concatenate([np.arange(table.front_count), backs])]
+    origin = origin + n_side * mi.Float(np.repeat(CUT_HEIGHT * size, grid * grid))
     middle = (grid // 2) * grid + grid // 2
     lane = dr.arange(mi.UInt32, sides * grid * grid)
     at = lane - lane % (grid * grid) + middle

@@ -165,14 +165,17 @@ def panel_on_floor(lift=0.0, resolution=16):
 
 def test_a_panel_standing_on_a_floor_cuts_the_patches_under_it():
     """The floor patches the panel stands across are found (partly cut off from their own
-    middle point), and only they; a panel lifted above the floor cuts nothing, nor do the
-    panel's own patches or a curved sphere's cells (test of the test)."""
+    middle point), and only they, also with the panel lifted a little (a gap of less than
+    a quarter of the patch size); a panel lifted higher cuts nothing, nor do the panel's
+    own patches or a curved sphere's cells (test of the test)."""
     table = MeshTable(mi.load_dict(panel_on_floor()), "test", h=0.2)
     floor = table.shape_index_np[:table.front_count] == [s.id() for s in table.shapes].index("floor")
     cut = darkness.straddling(darkness.cut_fractions(table))
     assert len(cut) > 0 and floor[cut].all()
     assert len(cut) <= 2 * int(np.ceil(1.6 / 0.2)) + 2    # one row of floor patches along the panel (1.6 wide)
-    lifted = MeshTable(mi.load_dict(panel_on_floor(lift=0.05)), "test", h=0.2)
+    near = MeshTable(mi.load_dict(panel_on_floor(lift=0.03)), "test", h=0.2)
+    assert np.array_equal(darkness.straddling(darkness.cut_fractions(near)), cut)
+    lifted = MeshTable(mi.load_dict(panel_on_floor(lift=0.08)), "test", h=0.2)
     assert len(darkness.straddling(darkness.cut_fractions(lifted))) == 0
     ball = MeshTable(mi.load_dict({"type": "scene", "s": {"type": "sphere", "radius": 0.5, "bsdf": diffuse()}}),
                      "test", h=0.1)
