@@ -22,12 +22,10 @@ smooth display and the exported meshes show the field reconstructed from them:
   averages drift from the patch values (the image mean -2.6 % in a room lit through its
   ceiling); the corrections bring them back (-0.86 %) and leave a linear field as it
   is. A vertex value is a fixed linear combination of patch values, so unbiased patch
-  values give unbiased vertex values, except where that combination is negative while
-  every patch it combines is non-negative: there the vertex takes 0 (a plane through a
-  steep drop extrapolated to a border, the corrections' overshoot beside a panel standing
-  on a floor: pixels down to -0.009 in front of a lit panel, one pixel of Mitsuba's
-  Cornell box at -0.0005); light is never negative, and a field of negative emission is
-  left as it is;
+  values give unbiased vertex values (no clamping: a plane extrapolated to a border, or
+  the corrections beside a steep drop, can make a vertex negative: one pixel of Mitsuba's
+  Cornell box at -0.0005 with ``qmc_lighttrace``; clamping such vertices at 0 was tried
+  and biased the caustic of the conformance suite's ``mirror_lit`` by +4 %, z +10);
 - **interpolation**: a point of a triangle patch takes its barycentric combination of
   the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
 
@@ -353,21 +351,7 @@ class PatchField:
             for c in range(flat.shape[1]):    # (the channels: a few)
                 beta = [np.bincount(centre, plane[:, j] * flat[other, c], minlength=self.count) for j in range(3)]
                 out[inner, c] = beta[0][at] + local[:, 0] * beta[1][at] + local[:, 1] * beta[2][at]
-        out = self.conserve(out, flat, iterations)
-        return np.maximum(out, self._floor(flat)).reshape((self.vertex_count,) + shape)
-
-    def _floor(self, flat):
-        """(V, C): the least value each vertex may take: 0 where every patch its value is
-        fitted from is non-negative (irradiance, radiance: a plane through them can still
-        reach below 0 at a border, and the corrections overshoot beside a sharp drop), no
-        bound elsewhere (a negative emission's field)."""
-        patch, vertex, _ = self._pairs
-        least = np.zeros((self.vertex_count, flat.shape[1]))
-        np.minimum.at(least, vertex, flat[patch])
-        if len(self._inner[0]):
-            inner, at, _ = self._inner
-            least[inner] = np.minimum(least[inner], flat[at])
-        return np.where(least < 0, -np.inf, 0.0)
+        return self.conserve(out, flat, iterations).reshape((self.vertex_count,) + shape)
 
     def conserve(self, out, flat, iterations=CONSERVE_ITERATIONS):
         """Vertex values ``out`` (V, C) moved toward patch averages equal to the patch

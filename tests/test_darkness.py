@@ -206,12 +206,13 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
 def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     """The smooth field's vertices on the panel's line are not shared by the floor's
     patches on its two sides (mi_plugins.patchfield.separate): along the panel's foot the
-    smooth display matches path within the noise (-1.1 and -0.8 standard errors
-    measured). Test of the test: with the vertices shared, the lit side's light crosses
-    the line (about twice path's value there, +12 standard errors; the whole image +11.7 %)."""
+    smooth display matches path within the noise (-1.8 and -1.7 standard errors
+    measured). Test of the test: with the vertices shared, the field is wrong there (the
+    lit side's light crosses the line, and the corrections push the row in front of it
+    below 0 to keep its patches' averages: -7.6 and -6.7 standard errors)."""
     from mi_plugins import meshtable, patchfield
     scene = panel_on_floor()
-    foot = np.s_[9:12, 4:12]           # the floor along the panel's foot, in front of it (16 px)
+    foot = np.s_[10:11, 4:12]          # the floor along the panel's foot, in front of it (16 px)
     ref, ref_se = _mean_and_se(scene, {"type": "path"}, 1024, 8, 54, foot)
     settings = dict({"qmc_lighttrace": {"samples": 100000}, "ray_bundle": {"iterations": 24}}[integrator],
                     type=integrator, display="smooth")
@@ -222,7 +223,7 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
         patch.setattr(patchfield, "separate", lambda scene, vertex, *a: vertex)
         bad, bad_se = _mean_and_se(scene, settings, 16, 8, 55, foot)
     meshtable._LAST.clear()
-    assert bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
+    assert abs(bad - ref) > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
 
 
 @pytest.mark.parametrize("degree", [1, 2])

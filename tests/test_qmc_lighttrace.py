@@ -21,6 +21,7 @@ phase's error of the image mean is small). So the checks use 8-16 runs, spp 16-2
 detects a relative error of the mean below 1 % (typically 0.2-0.7 %).
 """
 import functools
+import re
 
 import drjit as dr
 import mitsuba as mi
@@ -854,17 +855,17 @@ def test_work_beyond_the_limits_is_refused():
     rays x gather samples beyond 2^32 lanes, are refused before any work, by the
     parameter reader's message (the paths' 2^32 limit: test_bad_parameters)."""
     for params, spp, message in (
-            ({"max_depth": 10 ** 6}, 1, "qmc_lighttrace: parameter max_depth=1000000 is invalid; valid range: -1 "
-             "(unbounded: 2 layers) or a depth whose 999998 deposit layers x 24 patches fit: at most 16777216 "
-             "patch layers"),
-            ({"gather_samples": 1024}, 1 << 24, "qmc_lighttrace: parameter gather_samples=1024 is invalid; valid "
-             "range: a count whose 4294967296 eye rays x gather samples")):
+            ({"max_depth": 10 ** 6}, 1, r"qmc_lighttrace: parameter max_depth=1000000 is invalid; valid range: -1 "
+             r"\(unbounded: 2 layers\) or a depth whose 999998 deposit layers x \d+ patches fit: at most 16777216 "
+             r"patch layers"),
+            ({"gather_samples": 1024}, 1 << 24, r"qmc_lighttrace: parameter gather_samples=1024 is invalid; valid "
+             r"range: a count whose 4294967296 eye rays x gather samples")):
         scene = ordinary(lighttrace(**params), INSIDE, box={"type": "cube", "flip_normals": True, "bsdf": diffuse()},
                          light=lamp(0.5))
         with pytest.raises(Exception) as info:
             mi.render(scene, spp=spp)
         text = str(info.value) + str(info.value.__cause__ or "")
-        assert message in text, text
+        assert re.search(message, text), text
 
 
 def test_camera_samples_beyond_a_pass_render_in_passes(monkeypatch):
