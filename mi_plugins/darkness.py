@@ -29,8 +29,8 @@ in front of the panel +16 % with the gather display, +14 % and +31 % with the sm
 displays of ``qmc_lighttrace`` and ``ray_bundle``). :func:`cut_fractions` finds the points
 of a side that a steep surface separates from the side's middle point. Split, the gather
 display is right there again (+0.2 %); the smooth field's vertices on the panel's line
-are not shared across it either (:func:`mi_plugins.patchfield.separate`): +1.7 % and
-+1.8 % in the smooth displays.
+are not shared across it either (:func:`mi_plugins.patchfield.separate`): +0.8 % and
++0.9 % in the smooth displays (z 1.0).
 
 :func:`split_in_the_dark` splits the front patches with a side that is partly dark and
 partly not, or partly cut (``MeshTable.refined``), ``levels`` times, within
