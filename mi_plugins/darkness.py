@@ -161,7 +161,7 @@ def cut_fractions(table, points=POINTS):
     patch (its own curvature, a rug on it) do not cut it."""
     from mi_plugins.refinement import patch_sizes
     scene = table.scene
-    si, n_side, origin, _, sides, grid, backs = _side_points(table, points)
+    _, n_side, origin, _, sides, grid, backs = _side_points(table, points)
     # the segments run a quarter of the patch's size above it: a panel standing just
     # above the floor (a gap the light hardly passes) cuts the patch too
     size = patch_sizes(table)[np.concatenate([np.arange(table.front_count), backs])]
@@ -170,14 +170,20 @@ def cut_fractions(table, points=POINTS):
     lane = dr.arange(mi.UInt32, sides * grid * grid)
     at = lane - lane % (grid * grid) + middle
     target = mi.Point3f(*(dr.gather(mi.Float, origin[c], at) for c in range(3)))
-    span = target - origin
+    return _per_side(table, crossed(scene, origin, target, n_side), sides, grid, backs)
+
+
+def crossed(scene, start, end, normal):
+    """mi.Bool per lane: the segment ``start`` -> ``end`` meets a surface standing steeper
+    than 30 degrees to the plane of ``normal`` (a panel across a floor's patch); surfaces
+    nearly parallel to it (the patch's own curvature, a rug) do not count."""
+    span = end - start
     length = dr.norm(span)
     go = length > 0
-    ray = mi.Ray3f(origin, span / dr.select(go, length, 1.0))
+    ray = mi.Ray3f(start, span / dr.select(go, length, 1.0))
     ray.maxt = length * (1.0 - 1e-4)        # (Ray3f's third argument would be the time)
     hit = scene.ray_intersect(ray, mi.RayFlags.Minimal, False, go)
-    cut = go & hit.is_valid() & (dr.abs(dr.dot(hit.n, n_side)) < CUT_COSINE)
-    return _per_side(table, cut, sides, grid, backs)
+    return go & hit.is_valid() & (dr.abs(dr.dot(hit.n, normal)) < CUT_COSINE)
 
 
 def straddling(fractions):

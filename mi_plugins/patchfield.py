@@ -38,7 +38,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import tessellation
+from mi_plugins import darkness, tessellation
 
 #: patches whose normals differ by more than this (degrees) at a shared corner keep
 #: vertices of their own
@@ -115,21 +115,12 @@ def separate(scene, vertex, centres, normals, scale):
     n = len(vertex)
     if not n:
         return vertex
-    order = np.argsort(vertex, kind="stable")
-    first = np.empty(int(vertex.max()) + 1, np.int64)
-    first[vertex[order[::-1]]] = order[::-1]          # the first corner of each vertex
-    lead = first[vertex]
+    lead = np.unique(vertex, return_index=True)[1][vertex]      # each vertex's first corner (ids 0 .. V-1)
     eps = 1e-5 * (1.0 + float(scale))
-    start, end = centres + normals * eps, centres[lead] + normals[lead] * eps
-    span = end - start
-    length = np.linalg.norm(span, axis=1)
-    go = length > 0
-    ray = mi.Ray3f(mi.Point3f(*(mi.Float(start[:, c]) for c in range(3))),
-                   mi.Vector3f(*(mi.Float(span[:, c] / np.where(go, length, 1.0)) for c in range(3))))
-    ray.maxt = mi.Float(length * (1.0 - 1e-4))
-    hit = scene.ray_intersect(ray, mi.RayFlags.Minimal, False, mi.Bool(go))
-    facing = np.abs(np.einsum("ij,ji->i", normals, np.array(hit.n, dtype=np.float64)))
-    apart = go & np.array(hit.is_valid()) & (facing < np.cos(np.radians(30.0)))
+    jit = lambda kind, a: kind(*(mi.Float(a[:, c]) for c in range(3)))
+    apart = np.array(darkness.crossed(scene, jit(mi.Point3f, centres + normals * eps),
+                                      jit(mi.Point3f, centres[lead] + normals[lead] * eps),
+                                      jit(mi.Vector3f, normals)), dtype=bool)
     if not apart.any():
         return vertex
     return np.unique(vertex * 2 + apart, return_inverse=True)[1].ravel()

@@ -115,14 +115,16 @@ def refuse_shapes_without_patches(integrator, scene):
     from mi_plugins import tessellation
     from mi_plugins.meshtable import _is_mesh
     for shape in scene.shapes():
-        if not _is_mesh(shape) and tessellation.shape_kind(shape) not in tessellation.KINDS:
+        if _is_mesh(shape):
+            continue
+        if tessellation.shape_kind(shape) not in tessellation.KINDS:
             name = plugin_name(shape)
             raise Unsupported(
                 integrator, name, "the shape '%s' (id '%s')" % (name, shape.id()),
                 "%s stores light per patch, and only triangle meshes and Mitsuba's %s are divided into patches"
                 % (integrator, ", ".join(sorted(k.lower() for k in tessellation.KINDS))),
                 "convert the shape to a triangle mesh (a 'ply' or 'obj' file), or render with Mitsuba's 'path'")
-        reason = tessellation.distortion(shape) if not _is_mesh(shape) else None
+        reason = tessellation.distortion(shape)
         if reason:
             name = tessellation.shape_kind(shape).lower()
             raise Unsupported(

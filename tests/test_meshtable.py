@@ -425,11 +425,9 @@ def test_split_cells_have_their_own_centres(name):
     assert len(children) == 4 * min(4, table.front_count)
     centres = el["centre"][children]
     assert len(np.unique(np.round(centres, 6), axis=0)) == len(children)
-    si = split.surface_interaction(mi.UInt32(el["patch"][children].astype(np.uint32)), mi.Point2f(0.5, 0.5))
     hit = split.scene.ray_intersect(mi.Ray3f(mi.Point3f(centres.T + 0.01 * el["normal"][children].T),
                                             mi.Vector3f(-el["normal"][children].T)))
     assert np.abs(np.array(hit.p).T - centres).max() < 1e-4
     if name == "rectangle":
         parent = table.elements_np["centre"][:1]
         assert np.abs(centres[:4].mean(axis=0) - parent).max() < 1e-5
-    del si
