@@ -1,20 +1,24 @@
 """Patches that follow the light: the patch bias of uniform patches against adaptive
 subdivision (`refine`) at the same patch budget, and a picture of both.
 
-The *patch bias* is the error of the flat patch values themselves: `qmc_lighttrace`
-(whose particles carry the light between exact positions, so that its patch values are
-unbiased averages) shown with `display='patches'` (rho / pi times each patch side's
-irradiance, direct light included), two seeds, its noise removed, against a cached long
-`path` reference (real_scene_meshes.py): RMS per pixel and channel, full image and away
-from the visible light. Per scene: uniform patches at four sizes (`dark_levels` 0; a
+The *patch bias* is the error the patches make: `qmc_lighttrace` (whose particles carry
+the light between exact positions, so that its patch values are unbiased averages) shown
+with `display='patches'` (the flat values: rho / pi times each patch side's irradiance,
+direct light included) or, with `--display smooth`, with its smooth display (the direct
+light per pixel, the patches' indirect light interpolated from their vertices: the
+patches' error as a user of the solution sees it), two seeds, its noise removed, against
+a cached long `path` reference (real_scene_meshes.py): RMS per pixel and channel, full
+image and away from the visible light. Per scene: uniform patches at four sizes (`dark_levels` 0; a
 log-log fit of the bias against the patch count), the defaults (the dark splits), and
 `refine` (adaptive subdivision) on top of them; every layout's bias is compared with the
-uniform fit at its own patch count. Writes docs/adaptive_patches.png: the patch layouts
+uniform fit at its own patch count. Writes docs/adaptive_patches.png (the smooth
+display: docs/adaptive_patches_smooth.png): the patch layouts
 (false colours, split patches orange) and the signed error images of the uniform default,
 the refined and the finest uniform layout. Run from the
 repository root (about three minutes):
 
     python3 benchmarks/adaptive_patches.py [--scenes cornell_closed,cornell] [--samples 2000000]
+        [--display smooth --spp 256]
 """
 import argparse
 import math
@@ -100,12 +104,18 @@ def main():
     ap.add_argument("--samples", type=int, default=2_000_000, help="particle paths of each solve")
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--ref-spp", type=int, default=16384)
-    ap.add_argument("--png", default=PNG)
+    ap.add_argument("--png", default=None, help="default docs/adaptive_patches.png (the smooth display: "
+                                                   "docs/adaptive_patches_smooth.png)")
+    ap.add_argument("--display", default="patches", choices=("patches", "smooth"),
+                    help="the display measured: the flat patch values, or the smooth display (direct light per "
+                         "pixel, the patches' indirect light interpolated: the patches' error as a user sees it)")
     ap.add_argument("--refine", default="", help="extra settings of the refined layout, e.g. refine_threshold=0.05")
     args = ap.parse_args()
+    args.png = args.png or (PNG if args.display == "patches" else PNG.replace(".png", "_smooth.png"))
     rows, panels = [], []
-    base = dict(type="qmc_lighttrace", display="patches", samples=args.samples)
-    extra = {k: float(v) for k, v in (kv.split("=") for kv in args.refine.split(",") if kv)}
+    base = dict(type="qmc_lighttrace", display=args.display, samples=args.samples)
+    extra = {k: int(v) if v.lstrip("-").isdigit() else float(v)
+             for k, v in (kv.split("=") for kv in args.refine.split(",") if kv)}
     print("| scene | layout | patches | patch bias (RMS, full image) | away from the light | image mean (away) | "
           "/ uniform fit at the same count (full / away) |")
     print("|---|---|---|---|---|---|---|")

@@ -45,13 +45,14 @@ INTEGRATORS = ("path", "ptracer", "stochastic_ray", "ray_bundle", "ray_bundle_pa
 PAPER = {k: v for k, v in PAPER_SETTINGS.items() if k != "iterations"}   # the budget sets the iterations
 SETTINGS = {"path": "max_depth -1", "ptracer": "max_depth -1", "stochastic_ray": "defaults: 32 it, burn 8",
             "ray_bundle": "defaults: 64 ch, res 32", "ray_bundle_paper": "paper: 1 ch, res 128",
-            "qmc_lighttrace": "defaults (1e5 paths)", "ray_bundle_smooth": "smooth, 16 spp per it",
-            "qmc_smooth": "smooth, 25k paths, 16 spp"}
+            "qmc_lighttrace": "defaults (1e5 paths)", "ray_bundle_smooth": "smooth, 8 spp per it",
+            "qmc_smooth": "smooth, 25k paths, 8 spp"}
 UNIT = {"ray_bundle": "it", "ray_bundle_paper": "it", "ray_bundle_smooth": "it", "qmc_smooth": "x 25k"}   # others: spp
 #: the view-independent displays: one solve and a display of it, both grown with the budget
-#: (by default 16 camera samples per iteration or per 25 000 particle paths: a camera sample of the
-#: display costs a small fraction of either, and the visible light's edges need many)
-DISPLAY_SPP = [16]   # camera samples per budget unit (--display-spp)
+#: (by default 8 camera samples per iteration or per 25 000 particle paths: a camera sample of the
+#: display costs a small fraction of either; away from the light the solution's noise weighs most,
+#: measured best at 8 on the Cornell boxes at 128 px, 0.5x `path` on the full image kept)
+DISPLAY_SPP = [8]   # camera samples per budget unit (--display-spp)
 SMOOTH = {"ray_bundle_smooth": lambda b: (dict(type="ray_bundle", display="smooth", iterations=b),
                                           DISPLAY_SPP[0] * b),
           "qmc_smooth": lambda b: (dict(type="qmc_lighttrace", display="smooth", samples=25000 * b),
@@ -291,13 +292,13 @@ def main():
                    help="equal time of the ratio columns, seconds (default 1; 0: path's middle budget)")
     p.add_argument("--plot", default=None, help="default docs/real_scenes.png (quick: benchmarks/.cache/)")
     p.add_argument("--write-docs", action="store_true", help="write the tables into docs/real_scenes.md")
-    p.add_argument("--display-spp", type=int, default=16,
+    p.add_argument("--display-spp", type=int, default=8,
                    help="camera samples of the smooth displays per iteration or per 25 000 particle paths")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
     DISPLAY_SPP[0] = args.display_spp
     for name in SMOOTH:
-        SETTINGS[name] = SETTINGS[name].replace("16 spp", "%d spp" % args.display_spp)
+        SETTINGS[name] = SETTINGS[name].replace("8 spp", "%d spp" % args.display_spp)
     rsm.SCALE = args.scale
     args.plot = args.plot or os.path.join(ROOT, "benchmarks/.cache/real_scenes_quick.png" if args.quick
                                           else "docs/real_scenes.png")

@@ -85,8 +85,7 @@ class CameraPass:
     ``grid_width`` x ``grid_height`` grid, the crop window plus the filter's border when
     the film samples it), ``grid_pixel`` (the lane's pixel in that grid), ``box`` (a box
     filter: ``pos`` is the pixel), ``film_rays`` (the sensor's rays follow the film
-    position: :func:`shifted_ray` draws further rays through the lane's pixel from
-    ``corner``, ``offset``, ``aperture``, ``time`` and ``sensor``)."""
+    position: :func:`lattice_rays` can draw further rays through a pixel), ``sensor``."""
 
     def __init__(self, frame, sampler, per_pixel):
         film, sensor = frame.film, frame.sensor
@@ -114,9 +113,7 @@ class CameraPass:
         # box filter: splat at the pixel itself (as Mitsuba's ADIntegrator does)
         self.box = film.rfilter().is_box_filter()
         self.pos = mi.Vector2f(pos) if self.box else pos_f
-        # what further rays through the lane's pixel are drawn from (:func:`shifted_ray`)
-        self.corner, self.offset, self.aperture = mi.Vector2f(pos), pos_f - mi.Vector2f(pos), aperture
-        self.time, self.sensor = time, sensor
+        self.sensor = sensor
         self.sampler = sampler
         self.count = count
         self.per_pixel = int(per_pixel)
@@ -124,16 +121,29 @@ class CameraPass:
         self.grid_width, self.grid_height = int(full[0]), int(full[1])   # pixels of the lanes (with border)
 
 
-def shifted_ray(cam, shift, active=True):
-    """(ray, weight, pos): a further camera ray through the pixels of camera pass ``cam``
-    (its ``sensor``, pixel ``corner``s, positions ``offset`` in the pixel, ``aperture``
-    samples, ``time``, ``box``) at the positions shifted by ``shift`` modulo the pixel (as
-    uniform in the pixel as the sampler's), and the film position to splat it at."""
-    inside = cam.offset + mi.ScalarVector2f(shift)
-    pos_f = cam.corner + inside - dr.floor(inside)
-    ray, weight = film_ray(cam.sensor, pos_f, cam.time, cam.aperture, active)
-    return mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), \
-        (cam.corner if cam.box else pos_f)
+def lattice_rays(sensor, pixels, per_pixel, shifts, state):
+    """Further camera rays through the grid pixels ``pixels`` (UInt32, :func:`grid`):
+    ``per_pixel`` lanes per pixel, each a uniform position in the pixel (and its own
+    aperture point and time) shifted by every point of ``shifts`` modulo the pixel, so that
+    a lane's rays stratify its pixel. Yields (ray, weight, film position, pixel corner)
+    per shift; ``state``: the seed (UInt64) of the lanes' PCG32 streams (sequences from
+    2^32 on, apart from those of the camera paths, whose lanes number below 2^32)."""
+    film = sensor.film()
+    _, border, full = grid(film)
+    lane = dr.arange(mi.UInt32, dr.width(pixels) * int(per_pixel))
+    rng = mi.PCG32(dr.width(lane), initstate=state, initseq=mi.UInt64(lane) + (1 << 32))
+    pixel = dr.gather(mi.UInt32, pixels, lane // int(per_pixel))
+    corner = mi.Vector2f(grid_position(pixel, full, border) + mi.Vector2i(film.crop_offset()))
+    offset = mi.Vector2f(rng.next_float32(), rng.next_float32())
+    aperture = mi.Point2f(rng.next_float32(), rng.next_float32()) if sensor.needs_aperture_sample() \
+        else mi.Point2f(0.5)
+    time = sensor.shutter_open() + (rng.next_float32() * sensor.shutter_open_time()
+                                    if sensor.shutter_open_time() > 0 else 0.0)
+    for shift in shifts:
+        inside = offset + mi.ScalarVector2f(shift)
+        pos_f = corner + inside - dr.floor(inside)
+        ray, weight = film_ray(sensor, pos_f, time, aperture)
+        yield mi.Ray3f(ray.o, ray.d, ray.maxt, ray.time, ray.wavelengths), mi.Color3f(weight), pos_f, corner
 
 
 class SpecularChain:

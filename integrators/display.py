@@ -25,8 +25,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
-from mi_plugins.integrators.camera import emission_edges, seen_emission, shifted_ray
+from mi_plugins import qmc, seeds
+from mi_plugins.integrators.camera import emission_edges, lattice_rays, seen_emission
 from mi_plugins.integrators.core import coverage
 from mi_plugins.integrators.qmc_gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_particles import patch_side
@@ -111,9 +111,10 @@ class View:
             self.baked = SmoothTables(table, solution.field, solution.array("vertex reflected", lambda: _color(
                 solution.vertex_values("radiance") - solution.vertex_values("emission"))))
 
-    def visible(self, scene, si, bsdf, budget, active, rng):
+    def visible(self, scene, si, bsdf, budget, active, rng, light_sample):
         """What purely diffuse visible points ``si`` reflect toward the eye (their emission
-        comes with the camera path); ``budget``: the segments the path may still add."""
+        comes with the camera path); ``budget``: the segments the path may still add;
+        ``light_sample``: the numbers of the light sample (:func:`light_samples`)."""
         f = reflectance_toward(bsdf, si, active)
         if self.mode == "baked":
             return self.baked(si, mi.UInt32(0), active)
@@ -125,10 +126,22 @@ class View:
             return f * irradiance
         value = f * irradiance
         if self.adds_direct:       # a light sample, and near emitters a BSDF sample too (MIS)
-            value += direct_light(scene, si, bsdf, mi.Point2f(rng.next_float32(), rng.next_float32()), active,
+            value += direct_light(scene, si, bsdf, light_sample, active,
                                   (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())),
                                   mis=needs_bsdf_sample(scene, si, bsdf))
         return value
+
+
+def light_samples(cam, seed, k):
+    """The light sample's numbers of camera pass ``k``'s samples: point k per_pixel + j of
+    Sobol's first two dimensions (a (0, 2)-sequence) for the j-th sample of a pixel,
+    Owen-scrambled per pixel (``seed``: the render's stream), so that the light samples of
+    a pixel over all passes stratify the square, whichever sampler the sensor has (its
+    own numbers draw the film position). The penumbrae and the area lights' noise of the
+    direct light fall faster than with independent numbers."""
+    index = dr.opaque(mi.UInt32, int(k) * cam.per_pixel) + dr.arange(mi.UInt32, cam.count) % cam.per_pixel
+    key = qmc.hash32(dr.opaque(mi.UInt32, seed), cam.grid_pixel)
+    return mi.Point2f(*(qmc.sample("sobol", index, d, scramble=True, seed=key) for d in (0, 1)))
 
 
 def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes):
@@ -169,40 +182,44 @@ def lattice(count):
     return [(i / count, (i * g % count) / count) for i in range(count)]
 
 
-def emission_shares(frame, cam, chain, shifts, active, block="camera"):
-    """The emission seen directly by the lanes ``active``, averaged with further rays (the
-    sample's position shifted by ``shifts``, the points of :func:`lattice`); returns the
-    correction of the lanes' camera value. With a box filter every ray of a sample lands
-    in the sample's pixel with the same filter weight: the further rays' emission is added
-    to the camera block at weight 0 and the sample's own counts 1 / len(shifts). Any other
-    filter weighs the rays by their own positions: the emission then goes into a block of
-    its own, every camera sample weighing in (weight 1, or 1 / len(shifts) per ray on the
-    lanes ``active``), so that its normalisation is the camera samples'. ``cam``: a camera
-    pass (``box``, ``pos``, ``weight`` and what ``camera.shifted_ray`` reads); ``block``: its
-    camera block."""
+def emission_shares(frame, cam, chain, edges, state, block="camera"):
+    """The emission seen directly by the camera samples in the pixels of ``edges``
+    (:func:`edge_pixels`), from further rays: each such sample's own first segment gives
+    way to a lattice of ``len(shifts)`` rays through its pixel (``camera.lattice_rays``,
+    the lattice at a uniform shift of the sample's own: every ray is uniform in the pixel,
+    together they stratify it), each weighing 1 / len(shifts). The lattice rays run in a
+    kernel of their own over the edge pixels' samples only (``state``: the seed of their
+    streams), so the other lanes trace nothing. Returns the correction of the lanes'
+    camera value. With a box filter every ray of a sample lands in the sample's pixel with
+    the same filter weight: the rays' emission is added to the camera block at weight 0.
+    Any other filter weighs the rays by their own positions: the emission then goes into a
+    block of its own, every camera sample weighing in (weight 1, or 1 / len(shifts) per
+    ray of the edge pixels), so that its normalisation is the camera samples'. ``cam``: a
+    camera pass (``box``, ``pos``, ``weight``, ``sensor``, ``grid_pixel``, ``per_pixel``);
+    ``block``: its camera block."""
+    shifts, mask, pixels = edges
     share = 1.0 / len(shifts)
-    if cam.box:
-        for shift in shifts[1:]:       # a few rays per camera sample, one kernel
-            ray, weight, _ = shifted_ray(cam, shift, active)
-            seen = seen_emission(frame.scene, ray, active) * weight * share
-            frame.put_camera_share(cam.pos, seen, active & dr.any(seen != 0.0), block)
-        return dr.select(active, chain.first * (share - 1.0), 0.0)
-    frame.put_emission(cam.pos, chain.first * cam.weight, dr.select(active, share, 1.0))
-    for shift in shifts[1:]:
-        ray, weight, pos = shifted_ray(cam, shift, active)
-        frame.put_emission(pos, seen_emission(frame.scene, ray, active) * weight, share, active)
-    return -chain.first
+    on = dr.gather(mi.Bool, mask, cam.grid_pixel)
+    if not cam.box:
+        frame.put_emission(cam.pos, chain.first * cam.weight, dr.select(on, 0.0, 1.0))
+    for ray, weight, pos, corner in lattice_rays(cam.sensor, pixels, cam.per_pixel, shifts, state):
+        seen = seen_emission(frame.scene, ray) * weight
+        if cam.box:
+            frame.put_camera_share(corner, seen * share, dr.any(seen != 0.0), block)
+        else:
+            frame.put_emission(pos, seen, share)
+    return dr.select(on, -chain.first, 0.0) if cam.box else -chain.first
 
 
 def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
-    """(shifts, mask): the lattice of ``emitter_samples`` points and the grid pixels
-    whose camera samples take further rays for the emission they see (the pixels whose
-    rays through a centred copy of the lattice see different emission, and their
-    neighbours: ``camera.emission_edges``); None where no pixel does, the sensor's rays
-    ignore the film position or ``emitter_samples`` is 1. The pixels on a lamp's edge see
-    it or not by chance: the stratified rays cut that noise more than their number, at the
-    cost of a camera ray each (the full surface interaction only where they hit an
-    emitting shape); elsewhere nothing is traced."""
+    """(shifts, mask, pixels): the lattice of ``emitter_samples`` points and the grid
+    pixels whose camera samples take further rays for the emission they see (Bool per grid
+    pixel, and their indices: the pixels whose rays through a centred copy of the lattice
+    see different emission, and their neighbours: ``camera.emission_edges``); None where no
+    pixel does, the sensor's rays ignore the film position or ``emitter_samples`` is 1. The
+    pixels on a lamp's edge see it or not by chance: the stratified rays cut that noise
+    more than their number, at the cost of a camera ray each (the full surface interaction
+    only where they hit an emitting shape); elsewhere nothing is traced."""
     scene = frame.scene
     if emitter_samples < 2 or max_depth == 0 or hide_emitters or not (
             scene.environment() is not None or any(e.get_shape() is not None for e in scene.emitters())):
@@ -210,16 +227,20 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
     shifts = lattice(emitter_samples)
     half = 0.5 / emitter_samples
     mask = emission_edges(frame, [((x + half) % 1.0, (y + half) % 1.0) for x, y in shifts])
-    return None if mask is None or not mask.any() else (shifts, mi.Bool(mask))
+    if mask is None or not mask.any():
+        return None
+    return shifts, mi.Bool(mask), mi.UInt32(np.flatnonzero(mask).astype(np.uint32))
 
 
-def with_edges(frame, cam, chain, edges, value, block="camera"):
+def with_edges(frame, cam, chain, edges, value, state, block="camera"):
     """A camera pass's ``value`` (before the sensor's weight; ``block``: its camera block)
     with the emission that its first segment sees averaged with further rays in the pixels
-    of ``edges`` (:func:`emission_shares`, :func:`edge_pixels`; None: ``value`` as it is)."""
+    of ``edges`` (:func:`emission_shares`, :func:`edge_pixels`; None: ``value`` as it is);
+    ``state``: a seed (int, or an opaque UInt64) of the further rays' streams."""
     if edges is None or not cam.film_rays:
         return value
-    return value + emission_shares(frame, cam, chain, edges[0], dr.gather(mi.Bool, edges[1], cam.grid_pixel), block)
+    state = state if isinstance(state, mi.UInt64) else dr.opaque(mi.UInt64, int(state))
+    return value + emission_shares(frame, cam, chain, edges, state, block)
 
 
 def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1):
@@ -237,11 +258,12 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         chain, si, bsdf, used, active = paths.visible_points(cam, seed, evaluate=False)
         diffuse = view.surfaces.diffuse(si, active)
         rng = seeds.pcg(cam.count, seed, "camera_path", 2)
-        value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng)
+        value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng,
+                             light_samples(cam, seeds.stream(frame.seed, "display"), k))
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
-        value = with_edges(frame, cam, chain, edges, value)
+        value = with_edges(frame, cam, chain, edges, value, seeds.stream(seed, "camera_path", 4))
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())
         frame.commit()

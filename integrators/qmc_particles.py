@@ -85,9 +85,10 @@ def trace_particles(integ, scene, table, surfaces, start, count, seed, scale=Non
     bins = CHILDREN if children else 1
     store = FixedPoint(layers.count * table.count * 6 * bins, scale)  # [(((layer K + patch) 2 + side) bins + child) 3 + c]
     hits_per_child = dr.zeros(mi.Float, table.count * 2 * bins)
-    # the tail's stream: the render seed's, or a fixed one with the plain sequence
-    tail = mi.PCG32(count, initstate=dr.opaque(mi.UInt64, seeds.stream(seed if integ.scramble else 0, "particles", 1)),
-                    initseq=mi.UInt64(index))
+    # the tail's stream: the render seed's, or a fixed one with the plain sequence; sequence i for path i
+    # (seed(), not the constructor, which adds the lane: a range would draw other numbers than the whole)
+    tail = mi.PCG32(count)
+    tail.seed(dr.opaque(mi.UInt64, seeds.stream(seed if integ.scramble else 0, "particles", 1)), mi.UInt64(index))
     max_hits = mi.UInt32(layers.max_hits if layers.max_hits is not None else 0xFFFFFFFF)
     importance, radiance = mi.BSDFContext(mi.TransportMode.Importance), mi.BSDFContext(mi.TransportMode.Radiance)
     state = (ray, mi.Color3f(power), dr.zeros(mi.UInt32, count), dr.any(mi.Color3f(power) != 0),

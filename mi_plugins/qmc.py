@@ -109,16 +109,28 @@ def _sobol_matrix():
     return v.astype(np.uint32)
 
 
+def _sobol_bytes(matrix):
+    """(dims, 4, 256) uint32: for byte b of an index and each of its 256 values, the XOR of
+    the direction numbers of its set bits, so that a coordinate is four lookups instead of
+    32 (:func:`_sobol_bits`)."""
+    out = np.zeros((matrix.shape[0], 4, 256), dtype=np.uint32)
+    for byte in range(4):
+        for bit in range(8):
+            width = 1 << bit
+            out[:, byte, width:2 * width] = out[:, byte, :width] ^ matrix[:, 8 * byte + bit, None]
+    return out
+
+
 @functools.lru_cache(maxsize=None)
 def _tables(variant):
     """JIT tables of the current variant: Halton bases, offsets of each base's Faure
     permutation in the flat permutation table, that table, digits per base, Sobol
-    directions [dim * 32 + k]."""
+    byte tables [(dim * 4 + byte) * 256 + value] (:func:`_sobol_bytes`)."""
     bases = primes(MAX_HALTON_DIM).astype(np.uint32)
     offsets = np.concatenate([[0], np.cumsum(bases)[:-1]]).astype(np.uint32)
     perms = np.concatenate([faure_permutation(int(b)) for b in bases]).astype(np.uint32)
     digits = np.ceil(32 * np.log(2) / np.log(bases)).astype(np.uint32)   # of a 32-bit index
-    return tuple(mi.UInt32(t) for t in (bases, offsets, perms, digits, _sobol_matrix().ravel()))
+    return tuple(mi.UInt32(t) for t in (bases, offsets, perms, digits, _sobol_bytes(_sobol_matrix()).ravel()))
 
 
 # --------------------------------------------------------------------------- hashing, JIT helpers
@@ -204,11 +216,12 @@ def _radical_inverse(index, d, faure, key):
 
 
 def _sobol_bits(index, d):
-    """32-bit Sobol coordinate: XOR of the direction numbers of the index's set bits."""
+    """32-bit Sobol coordinate: XOR of the direction numbers of the index's set bits (by
+    bytes: the four bytes' precomputed XORs)."""
     table = _tables(mi.variant())[4]
     bits = mi.UInt32(0)
-    for k in range(32):
-        bits ^= dr.select(((index >> k) & 1) != 0, dr.gather(mi.UInt32, table, d * 32 + k), 0)
+    for byte in range(4):
+        bits ^= dr.gather(mi.UInt32, table, (d * 4 + byte) * 256 + ((index >> (8 * byte)) & 0xFF))
     return bits
 
 

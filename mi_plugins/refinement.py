@@ -3,13 +3,13 @@
 A solve measures, for every patch side, what arrives in each of its *children*: the 4
 level-2 sub-triangles of a triangle, the 4 uv quadrants of a cell, the up to 8 octants of
 a cluster's grid cell (:func:`child_index`: the same children ``MeshTable.refined``
-makes). After a stage of the solve, :func:`choose` splits the patches where some child's
-irradiance differs from the patch's by more than ``threshold`` of it and by more than
-:data:`Z` standard errors: the variation
-of the incoming radiance inside the patch, with each child's standard error estimated
-from its deposits (the stochastic-iteration paper's remedy:
+makes). After a stage of the solve, :func:`choose` splits the patches whose children's irradiances
+differ from the patch's beyond their noise together (a chi-square test at :data:`Z`
+sigma) and some child's by more than ``threshold`` of it: the variation of the incoming
+radiance inside the patch, with each child's standard error estimated from its deposits
+(the stochastic-iteration paper's remedy:
 "much more robust than methods which examine the radiosity gradient"; it finds shadow
-boundaries and highlights inside a patch), the most varying first, down to ``min_size``
+boundaries and highlights inside a patch), the largest errors first, down to ``min_size``
 and within ``budget`` patches. A uniform field splits nothing: its children agree to
 their noise.
 
@@ -26,7 +26,7 @@ from mi_plugins import tessellation
 
 #: children per patch side (an octant of a cluster's cell; 4 on triangles and cells)
 CHILDREN = 8
-#: a child differs significantly beyond this many of its standard errors
+#: the significance of a patch's variation: the upper tail of a normal beyond this many sigma
 Z = 4.0
 
 
@@ -109,26 +109,45 @@ def choose(table, sums, squares, threshold, min_size, budget):
     received (luminance, any unit: deposits or irradiance sums), ``squares`` (K, 2, 8) the
     sums of the squares of the deposits behind them (under a uniform density, a child's
     sum has the square root of its area's share of the patch's squares as its standard
-    error, whatever the deposits' spread: a child that received nothing is tested too); at most as many as keep the
-    patches within ``budget`` (a split adds up to 3 or 7), the largest relative variations
-    first."""
+    error, whatever the deposits' spread: a child that received nothing is tested too).
+    A patch side varies where its children's densities differ from the patch's beyond
+    their noise together (a chi-square test of all its children at the :data:`Z`-sigma
+    level: a smooth falloff that no single child shows significantly is found too) and
+    some child by more than ``threshold`` of it. The varying patches split in the order of
+    the error their flat value makes (the area-weighted spread of the children's densities
+    about the patch's, less its expected noise: what splitting removes), at most as many
+    as keep the patches within ``budget`` (a split adds up to 3 or 7)."""
     areas = child_areas(table)[:, None, :]                          # (K, 1, 8)
     present = areas > 0
     total_area = np.maximum(areas.sum(axis=2, keepdims=True), 1e-300)
-    density = np.where(present, sums / np.maximum(areas, 1e-300), 0.0)
+    density = np.where(present, sums / np.where(present, areas, 1.0), 0.0)
     mean = sums.sum(axis=2, keepdims=True) / total_area
-    scale = np.maximum(np.abs(mean), 1e-300)
     deviation = np.abs(density - mean)
-    # a child's standard error if the patch received a uniform density (the null hypothesis):
-    # its area's share of the squares of all the patch's deposits (an empty child has one too)
+    # a child's variance if the patch received a uniform density (the null hypothesis): its
+    # area's share of the squares of all the patch's deposits (an empty child has one too)
     pooled = np.maximum(squares, 0.0).sum(axis=2, keepdims=True) * (areas / total_area)
-    noise = Z * np.sqrt(pooled) / np.maximum(areas, 1e-300)
-    significant = present & (deviation > np.maximum(noise, threshold * scale)) & (pooled > 0)
-    score = np.where(significant, deviation / scale, 0.0).max(axis=(1, 2))
-    eligible = (score > 0) & (patch_sizes(table) > 2.0 * min_size)
+    safe = np.where(present, areas, 1.0)
+    variance = np.where(present, pooled / safe ** 2, 0.0) * (1.0 - areas / total_area)
+    tested = present & (variance > 0)
+    with np.errstate(over="ignore"):        # (a difference far beyond a tiny noise: infinitely significant)
+        chi2 = np.where(tested, deviation ** 2 / np.where(tested, variance, 1.0), 0.0).sum(axis=2)      # (K, 2)
+    df = np.maximum(tested.sum(axis=2) - 1, 1)
+    varies = (chi2 > chi2_quantile(df, Z)) & tested.any(axis=2)
+    varies &= (np.where(present, deviation, 0.0) > threshold * np.abs(mean)).any(axis=2)
+    excess = np.where(tested, areas * (deviation ** 2 - variance), 0.0).sum(axis=2)            # (K, 2)
+    score = np.where(varies, np.maximum(excess, 0.0), 0.0).sum(axis=1)
+    eligible = varies.any(axis=1) & (score > 0) & (patch_sizes(table) > 2.0 * min_size)
     order = np.argsort(-np.where(eligible, score, -1.0), kind="stable")[:int(eligible.sum())]
     room = max(0, int(budget) - table.front_count)
     return np.sort(order[:room // 3])
+
+
+def chi2_quantile(df, z):
+    """The chi-square quantile of ``df`` degrees of freedom at the upper tail of a normal
+    ``z`` (Wilson and Hilferty's cube-root approximation)."""
+    df = np.asarray(df, dtype=np.float64)
+    c = 2.0 / (9.0 * df)
+    return df * (1.0 - c + z * np.sqrt(c)) ** 3
 
 
 def from_points(table, values, squares, counts):

@@ -131,7 +131,7 @@ def test_the_edge_pixels_follow_the_lamps_edges():
     from mi_plugins.integrators.core import Frame
     scene = lamp_scene()
     frame = Frame(scene, scene.sensors()[0], 1, 0, "test")
-    shifts, mask = display.edge_pixels(frame, -1, False, 8)
+    shifts, mask, pixels = display.edge_pixels(frame, -1, False, 8)
     mask = np.array(mask).reshape(16, 16)
     seen = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=1024))
     c = seen[..., :3].mean(axis=-1) / 5.0

@@ -250,6 +250,26 @@ def test_scramble_false_is_deterministic_and_passes():
     assert res.passed, res
 
 
+
+@pytest.mark.parametrize("depth", [0, 2])
+def test_a_range_of_paths_draws_what_the_whole_trace_draws(depth):
+    """Path i's bounces beyond ``sequence_depth`` draw from path i's own stream, so that a
+    range of paths (a distributed render's task) traces what one trace of all paths does
+    there; with every bounce from that stream (depth 0) and with two from the sequence,
+    two ranges sum to the whole exactly (fixed point). Test of the test: ranges that start
+    one path off differ (the PCG32 constructor adds the lane to the stream: seeded so, a
+    range drew other numbers than the whole)."""
+    from mi_plugins.integrators.qmc_particles import trace_range
+    scene = face_view(analytic.keller_cube(resolution=RES)).scene(lighttrace(sequence_depth=depth))
+    integ = scene.integrator()
+    table = integ.patch_table(scene)
+    whole = trace_range(integ, scene, table, 0, 6000, 3)[0]
+    halves = trace_range(integ, scene, table, 0, 2500, 3)[0] + trace_range(integ, scene, table, 2500, 3500, 3)[0]
+    np.testing.assert_allclose(halves, whole, rtol=1e-6, atol=1e-9 * whole.max())
+    off = trace_range(integ, scene, table, 0, 2500, 3)[0] + trace_range(integ, scene, table, 2501, 3500, 3)[0]
+    assert not np.allclose(off, whole, rtol=1e-4)
+
+
 # ------------------------------------------------------------------ neighbour sharing
 SHARE_SPP = 64
 

@@ -126,6 +126,53 @@ def test_uniform_light_splits_nothing():
     assert rounds == [], rounds
 
 
+
+def _measured(table, density, deposits=400):
+    """(sums, squares) as ``choose`` reads them for a field ``density(patch, child)`` over
+    the rectangle's patches (front sides only): each child's sum its area times the
+    density, from ``deposits`` deposits per patch of equal size (their squares)."""
+    areas = refinement.child_areas(table)
+    k = table.front_count
+    sums, squares = np.zeros((k, 2, refinement.CHILDREN)), np.zeros((k, 2, refinement.CHILDREN))
+    for p in range(k):
+        sums[p, 0] = [areas[p, c] * density(p, c) for c in range(refinement.CHILDREN)]
+        share = areas[p] / max(areas[p].sum(), 1e-300)
+        size = sums[p, 0].sum() / deposits
+        squares[p, 0] = deposits * share * size ** 2
+    return sums, squares
+
+
+def test_a_smooth_falloff_splits_and_noise_does_not():
+    """The children of every patch differ from its mean by 2.5 standard errors each (a
+    falloff across the patch): no single child is significant at 4 sigma, all of them
+    together are (the chi-square test), so every patch may split; children that differ by
+    less than their noise (1 standard error) split none. With room for one split, the
+    patch with the larger error (area times the children's spread) goes first, not the
+    one with the larger relative variation."""
+    scene = mi.load_dict({"type": "scene", "s": SHAPES["rectangle"]})
+    table = MeshTable(scene, "test", h=0.6)
+    k = table.front_count
+    areas = refinement.child_areas(table)
+    deposits = 400
+
+    def field(z):
+        def density(p, c):
+            se = np.sqrt(areas[p, c] / areas[p].sum() / deposits) * areas[p].sum() / max(areas[p, c], 1e-300)
+            sign = 1.0 if c % 2 else -1.0
+            return 1.0 + sign * z * se if areas[p, c] > 0 else 0.0
+        return density
+    falloff = refinement.choose(table, *_measured(table, field(2.5), deposits), 0.01, 0.0, 100 * k)
+    assert len(falloff) == k, (len(falloff), k)
+    assert len(refinement.choose(table, *_measured(table, field(1.0), deposits), 0.01, 0.0, 100 * k)) == 0
+    # two patches vary: patch 0 by 30 % of a bright field, patch 1 by 60 % of a field 10 x darker
+    level = {0: 10.0, 1: 1.0}
+    spread = {0: 0.3, 1: 0.6}
+    density = lambda p, c: (level.get(p, 1.0) * (1.0 + (spread.get(p, 0.0) if c % 2 else -spread.get(p, 0.0)))
+                            if areas[p, c] > 0 else 0.0)
+    first = refinement.choose(table, *_measured(table, density, 100000), 0.01, 0.0, k + 3)
+    assert list(first) == [0], first
+
+
 @pytest.mark.parametrize("display", ["gather", "smooth", "patches"])
 def test_refined_patches_keep_constant_radiance_exact(display):
     """Keller's cube with refinement (a constant field: nothing varies, a few splits of

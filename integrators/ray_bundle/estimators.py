@@ -120,7 +120,7 @@ class Estimator:
 
     def __init__(self, transport, hide_emitters, max_depth=-1):
         self.transport, self.hide_emitters, self.max_depth = transport, hide_emitters, int(max_depth)
-        self.edges = None        # (shifts, pixels) of display.edge_pixels: further rays there
+        self.edges = None        # (shifts, mask, pixels) of display.edge_pixels: further rays there
         self.group = transport.layout.chains      # chains per camera pass (fewer: see limits.camera_group)
         needed = any(s.bsdf() is not None and has_non_smooth_scalar(s.bsdf()) for s in transport.scene.shapes())
         self.handoff = Handoff(self.max_depth, max_used=max(self.max_depth, 1)) if needed else None
@@ -154,7 +154,7 @@ class Estimator:
                 value += self.handoff.sample(scene, cam.sampler, si, bsdf, used if depth >= 0 else 1, valid,
                                              max_used=max(depth, 1))
             value = path.emission + path.throughput * value
-            value = display.with_edges(frame, cam, path, self.edges, value, block)
+            value = display.with_edges(frame, cam, path, self.edges, value, rng_seed, block)
         else:
             value = path.throughput * value
         covered = None

@@ -242,8 +242,9 @@ class RayBundleIntegrator(SolutionIntegrator):
        - adaptive subdivision, with a display from the solution: a pilot half of the
          averaged iterations measures what the lines bring to the children of every patch
          (level-2 sub-triangles, cell quadrants, cluster octants); the patches inside which
-         it varies (a child differing from the patch by more than ``refine_threshold`` and
-         4 standard errors: shadow boundaries, spot pools) split, and the solve goes on on
+         it varies (its children's differences beyond their noise together, at 4 sigma,
+         and a child differing from the patch by more than ``refine_threshold``: shadow
+         boundaries, spot pools) split, the largest errors first, and the solve goes on on
          the refined patches from the pilot's state (a child's radiance its parent's;
          ``mi_plugins.refinement``), 2 iterations of burn-in, then the averaged ones
      * - refine_threshold

@@ -29,17 +29,14 @@ from mi_plugins.integrators.ray_bundle.transfer import ChainLayout, Transport
 @dataclass
 class Cam:
     """One camera pass's samples as a frozen step's input (``camera.CameraPass``'s; with
-    further rays on emitters' edges also what ``camera.shifted_ray`` reads)."""
+    further rays on emitters' edges also what ``display.emission_shares`` reads)."""
     ray: mi.Ray3f
     weight: mi.Color3f
     pos: mi.Vector2f
     sampler: mi.Sampler
     count: int
+    per_pixel: int
     sensor: mi.Sensor = None
-    corner: mi.Vector2f = None
-    offset: mi.Vector2f = None
-    aperture: mi.Point2f = None
-    time: mi.Float = None
     grid_pixel: mi.UInt32 = None
     box: bool = True
     film_rays: bool = True
@@ -198,11 +195,10 @@ class Run:
             sampler = cam.sampler if self.uses_sampler else None
             cam.sampler.schedule_state()                # the camera's samples, not how they were drawn
             edges = self.estimator.edges is not None
-            further = (cam.corner, cam.offset, cam.aperture, mi.Float(cam.time), cam.grid_pixel) if edges \
-                else (None,) * 5
-            dr.eval(cam.ray, cam.weight, cam.pos, *(x for x in further if x is not None))
-            self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count,
-                                 self.frame.sensor if edges else None, *further, cam.box, cam.film_rays),
+            dr.eval(cam.ray, cam.weight, cam.pos, cam.grid_pixel if edges else None)
+            self.image(self, Cam(cam.ray, cam.weight, cam.pos, sampler, cam.count, cam.per_pixel,
+                                 self.frame.sensor if edges else None, cam.grid_pixel if edges else None, cam.box,
+                                 cam.film_rays),
                        state, incoming, sources, dr.opaque(mi.UInt32, g * self.group), dr.opaque(mi.UInt64, seed),
                        block)
 
