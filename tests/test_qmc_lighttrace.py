@@ -270,6 +270,40 @@ def test_a_range_of_paths_draws_what_the_whole_trace_draws(depth):
     assert not np.allclose(off, whole, rtol=1e-4)
 
 
+
+def _bright_room_means(seeds=6):
+    """Image means of a closed room of reflectance 0.99 under a small lamp (``display``
+    'patches': the solution itself), one render per seed."""
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({"type": "scene",
+                          "box": {"type": "cube", "flip_normals": True,
+                                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.99] * 3}}},
+                          "lamp": {"type": "rectangle",
+                                   "to_world": T().translate([0, 0.99, 0]).rotate([1, 0, 0], 90).scale(0.05),
+                                   "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [100.0] * 3}}},
+                          "sensor": {"type": "perspective", "fov": 70,
+                                     "to_world": T().look_at([0, 0, 0.9], [0, 0, 0], [0, 1, 0]),
+                                     "film": {"type": "hdrfilm", "width": 8, "height": 8}}})
+    integ = mi.load_dict({"type": "qmc_lighttrace", "display": "patches", "samples": 40000})
+    return np.array([np.array(mi.render(scene, integrator=integ, spp=4, seed=budget.seed(s)))[..., :3].mean()
+                     for s in range(seeds)])
+
+
+def test_a_bright_room_keeps_a_finite_variance(monkeypatch):
+    """The particles' Russian roulette survives a bounce of weight w with probability
+    min(w, MAX_SURVIVAL): where w exceeds it the survivor's power grows, and the deposits'
+    variance is finite only while w^2 < MAX_SURVIVAL. In a room of reflectance 0.99 the
+    image means of 6 seeds agree within 2 % (measured 0.4 %); test of the test: with
+    Mitsuba's cap of 0.95 (0.99^2 > 0.95: infinite variance) they spread by more than 5 %
+    (measured 14 %)."""
+    from mi_plugins.integrators import qmc_particles
+    means = _bright_room_means()
+    assert means.std(ddof=1) / means.mean() < 0.02, means
+    monkeypatch.setattr(qmc_particles, "MAX_SURVIVAL", 0.95)
+    means = _bright_room_means()
+    assert means.std(ddof=1) / means.mean() > 0.05, means
+
+
 # ------------------------------------------------------------------ neighbour sharing
 SHARE_SPP = 64
 
