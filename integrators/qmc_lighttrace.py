@@ -85,9 +85,10 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
        - 3
        - Keller's M >= 0: bounces drawn from the sequence (4 + 3M dimensions must fit:
          Halton/Faure M <= 84); later bounces play Russian roulette (survival: the
-         bounce's largest weight, at most 0.95). No truncation. The default measures best:
+         bounce's largest weight, at most 0.99). No truncation. The default measures best:
          the roulette spares the deep bounces' little light: 1.45x the efficiency
-         (inverse variance per second) of the patches of M = 10 (Keller's truncation depth) on the benchmark's Cornell boxes
+         (inverse variance per second) of the patches of M = 10 (Keller's truncation
+         depth) on the benchmark's Cornell boxes
      * - samples
        - int
        - 100000
