@@ -186,7 +186,7 @@ def emission_shares(frame, cam, chain, edges, state, block="camera"):
     """The emission seen directly by the camera samples in the pixels of ``edges``
     (:func:`edge_pixels`), from further rays: each such sample's own first segment gives
     way to a lattice of ``len(shifts)`` rays through its pixel (``camera.lattice_rays``,
-    the lattice at a uniform shift of the sample's own: every ray is uniform in the pixel,
+    the lattice at a uniform shift drawn for the sample: every ray is uniform in the pixel,
     together they stratify it), each weighing 1 / len(shifts). The lattice rays run in a
     kernel of their own over the edge pixels' samples only (``state``: the seed of their
     streams), so the other lanes trace nothing. Returns the correction of the lanes'
