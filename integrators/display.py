@@ -236,10 +236,12 @@ def with_edges(frame, cam, chain, edges, value, state, block="camera"):
     """A camera pass's ``value`` (before the sensor's weight; ``block``: its camera block)
     with the emission that its first segment sees averaged with further rays in the pixels
     of ``edges`` (:func:`emission_shares`, :func:`edge_pixels`; None: ``value`` as it is);
-    ``state``: a seed (int, or an opaque UInt64) of the further rays' streams."""
+    ``state``: the seed of the further rays' streams, an opaque UInt64, or an int (the pass's
+    seed, whose stream it then takes)."""
     if edges is None or not cam.film_rays:
         return value
-    state = state if isinstance(state, mi.UInt64) else dr.opaque(mi.UInt64, int(state))
+    if not isinstance(state, mi.UInt64):
+        state = dr.opaque(mi.UInt64, seeds.stream(int(state), "camera_path", 4))
     return value + emission_shares(frame, cam, chain, edges, state, block)
 
 
@@ -263,7 +265,7 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
-        value = with_edges(frame, cam, chain, edges, value, seeds.stream(seed, "camera_path", 4))
+        value = with_edges(frame, cam, chain, edges, value, seed)
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
         dr.eval(frame.state())
         frame.commit()

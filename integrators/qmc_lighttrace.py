@@ -361,8 +361,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             chain, si, light, gathered = paths.estimate(cam, seed, self.gather_samples)
             if self.share_neighbors:
                 gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
-            value = with_edges(frame, cam, chain, edges, chain.emission + chain.throughput * (light + gathered),
-                               seeds.stream(seed, "camera_path", 4))
+            value = with_edges(frame, cam, chain, edges, chain.emission + chain.throughput * (light + gathered), seed)
             frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, self.hide_emitters))
             if passes > 1:
                 dr.eval(frame.state())

@@ -210,15 +210,14 @@ def _split_elements(part, grow, next_patch):
     area = np.where(rep(mesh), rep(part["area"][grow]) / 4.0,
                     tessellation.area_share(int(kind[0]) if (~mesh).any() else 1, bounds)
                     * part.get("surface_area", 0.0))
-    centre, normal = tri.mean(axis=1), rep(part["normal"][grow])
+    centre, normal, frame = tri.mean(axis=1), rep(part["normal"][grow]), rep(part["frame"][grow])
     cells = ~rep(mesh)
     if cells.any():          # an analytic cell's children: their own centres and normals
-        centre[cells], normal[cells] = tessellation.cell_centres(int(kind[cells][0]), bounds[cells],
-                                                                 rep(part["frame"][grow])[cells])
+        centre[cells], normal[cells] = tessellation.cell_centres(int(kind[cells][0]), bounds[cells], frame[cells])
     out = dict(part)
     for key, value in (("kind", kind), ("prim", rep(part["prim"][grow])), ("area", area),
                        ("normal", normal), ("triangle", tri), ("uv", uv), ("bounds", bounds),
-                       ("frame", rep(part["frame"][grow])), ("centre", centre),
+                       ("frame", frame), ("centre", centre),
                        ("depth", rep(part["depth"][grow]) + 1), ("child", np.full(4 * k, -1, np.int64)),
                        ("parent", rep(grow)), ("patch", next_patch + np.arange(4 * k))):
         out[key] = np.concatenate([part[key], value])

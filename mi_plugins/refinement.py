@@ -132,11 +132,11 @@ def choose(table, sums, squares, threshold, min_size, budget):
     with np.errstate(over="ignore"):        # (a difference far beyond a tiny noise: infinitely significant)
         chi2 = np.where(tested, deviation ** 2 / np.where(tested, variance, 1.0), 0.0).sum(axis=2)      # (K, 2)
     df = np.maximum(tested.sum(axis=2) - 1, 1)
-    varies = (chi2 > chi2_quantile(df, Z)) & tested.any(axis=2)
+    varies = chi2 > chi2_quantile(df, Z)         # (no child tested: chi2 0, never above)
     varies &= (np.where(present, deviation, 0.0) > threshold * np.abs(mean)).any(axis=2)
     excess = np.where(tested, areas * (deviation ** 2 - variance), 0.0).sum(axis=2)            # (K, 2)
     score = np.where(varies, np.maximum(excess, 0.0), 0.0).sum(axis=1)
-    eligible = varies.any(axis=1) & (score > 0) & (patch_sizes(table) > 2.0 * min_size)
+    eligible = (score > 0) & (patch_sizes(table) > 2.0 * min_size)     # (a score needs a varying side)
     order = np.argsort(-np.where(eligible, score, -1.0), kind="stable")[:int(eligible.sum())]
     room = max(0, int(budget) - table.front_count)
     return np.sort(order[:room // 3])
