@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import collection, fingerprint, seeds, support
+from mi_plugins import collection, fingerprint, lights, seeds, support
 from mi_plugins.params import Params
 from mi_plugins.integrators.camera import CameraPass
 from mi_plugins.progress import Progress, Steps
@@ -390,7 +390,7 @@ class CoreIntegrator(mi.SamplingIntegrator):
         key = parameter_requiring_gradients(scene)
         if key is not None:
             raise gradients_error(self.plugin, key)
-        self.check_scene(scene, sensor)
+        self.prepare(scene, sensor)
         if not isinstance(seed, int):      # a wrapping integrator ('aov') passes its seed as an array
             seed = int(dr.ravel(seed)[0]) if dr.width(seed) else 0
         frame = Frame(scene, sensor, spp, seed, self.plugin)
@@ -447,6 +447,13 @@ class CoreIntegrator(mi.SamplingIntegrator):
         if not self.hide_emitters and getattr(self, "max_depth", -1) != 0:
             value = mi.Color3f(si.emitter(frame.scene).eval(si))
         frame.put_camera(cam, value, coverage=coverage(frame.scene, si.is_valid(), self.hide_emitters))
+
+    def prepare(self, scene, sensor):
+        """Before any work of a render or solve: refuse what the integrator cannot render
+        right (:meth:`check_scene`), then have Mitsuba build what it would otherwise build
+        while a kernel is traced (:func:`mi_plugins.lights.build_parameterizations`)."""
+        self.check_scene(scene, sensor)
+        lights.build_parameterizations(scene)
 
     def check_scene(self, scene, sensor):
         """Refuse what the integrator cannot render right, before any work

@@ -278,7 +278,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     def preprocess(self, scene, seed=0, report=True):
         """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
         returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
-        self.check_scene(scene, None)
+        self.prepare(scene, None)
         particle_phase(self, scene, self.patch_table(scene), seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 

@@ -87,7 +87,7 @@ class SolutionIntegrator(CoreIntegrator):
         """The view-independent solution of ``scene``, complete (geometry, direct light);
         no garbage collection meanwhile (:mod:`mi_plugins.collection`)."""
         with collection.paused():
-            self.check_scene(scene, None)
+            self.prepare(scene, None)
             solution = self.solution_for(scene, seed, self.patch_table(scene))
             return solution.complete(scene, self.table_of(scene, solution))
 

@@ -174,6 +174,23 @@ def _area_light_rays(emitter, position, u_direction, active):
     return si.spawn_ray(mi.Frame3f(ps.n).to_world(local)), weight
 
 
+def build_parameterizations(scene):
+    """Have Mitsuba build now, before any kernel of a render is traced, the uv-space scene
+    that ``eval_parameterization`` of a mesh traces (made on its first use: Mitsuba samples
+    a textured area light on a mesh through it). Made while a kernel is traced, that scene's
+    BSDF joins the BSDFs of every later call in the kernel: the kernel then holds a BSDF
+    function both as a direct call (traced before, one BSDF) and in a call table (after,
+    two), which Dr.Jit 1.5 writes twice, and LLVM aborts the process ("invalid redefinition
+    of function"; docs/findings.md)."""
+    for shape in scene.shapes():
+        emitter = shape.emitter()
+        if shape.is_mesh() and emitter is not None and mi.has_flag(emitter.flags(), mi.EmitterFlags.SpatiallyVarying):
+            try:
+                dr.eval(shape.eval_parameterization(mi.Point2f(0.5, 0.5)))
+            except RuntimeError:        # a mesh without uv: Mitsuba's sampling of it is refused elsewhere
+                pass
+
+
 def has_infinite(scene):
     return any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters())
 

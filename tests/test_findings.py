@@ -85,3 +85,9 @@ def test_flip_normals_reproducer_runs_and_still_reproduces():
         assert float(rows["flipped", radiance][-2]) < 0.05, out + UPDATE     # flipped, textured: the light is lost
     assert float(rows["cube", "bitmap"][-1]) < -4.5, out + UPDATE
     assert "of eval_parameterization [0, 1, 0], of a ray hit [0, -1, 0]" in out, out + UPDATE
+
+
+def test_tracing_abort_reproducer_runs_and_still_reproduces():
+    out = run("plugin_made_while_tracing_aborts.py")
+    assert "uv scene built while tracing: exit code" in out and "redefinition" in out, out + UPDATE
+    assert "uv scene built before tracing: renders" in out, out
