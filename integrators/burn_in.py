@@ -12,14 +12,15 @@ without the user tuning ``burn_in``:
   half of the averaged steps are compared (:mod:`mi_plugins.convergence`); while they
   differ, the steps so far become burn-in and twice as many are averaged anew.
 
-Both stop at the integrator's ``max_iterations``, with a ``RuntimeWarning`` naming what
-was measured.
+Where ``max_iterations`` leaves too little room, the render is refused
+(:class:`mi_plugins.support.NotConverged`, naming what was measured and the steps needed)
+instead of returning a darker image; a drift left with a burn-in the user chose is warned of.
 """
 import warnings
 
 import numpy as np
 
-from mi_plugins import convergence
+from mi_plugins import convergence, support
 
 #: the transient defect the fitted burn-in allows (lambda^b / (1 - lambda)^2, relative)
 BURN_IN_BIAS = 1e-3
@@ -37,11 +38,12 @@ def lengthen(plugin, steps, ratios, max_iterations):
     averaged = steps.count - steps.state.burn_in
     room = max_iterations - averaged
     if needed > room:
-        warnings.warn("%s: the scene's effective albedo is %.4f: a burn-in of %d steps is needed for a defect below "
-                      "%.1g, but max_iterations=%d leaves room for %d; the image is darker by about %.2g %%: raise "
-                      "max_iterations" % (plugin, lam, needed, BURN_IN_BIAS, max_iterations, room,
-                                          100 * lam ** room / (1 - lam) ** 2), RuntimeWarning, stacklevel=3)
-        needed = room
+        raise support.NotConverged(
+            plugin, "the scene's effective albedo is %.4f: a burn-in of %d steps is needed for a defect below %.1g, and "
+                    "%d leave the image darker by about %.2g %%" % (lam, needed, BURN_IN_BIAS, room,
+                                                                    100 * lam ** room / (1 - lam) ** 2),
+            needed + averaged, max_iterations, "render this scene with 'qmc_lighttrace', whose particles need no "
+                                               "burn-in")
     if needed > steps.state.burn_in:
         steps.extend(needed - steps.state.burn_in, restart_average=False)
         steps.state.burn_in = needed
@@ -66,12 +68,13 @@ def drift_check(plugin, steps, totals, max_iterations, extend=True):
     extra = min(2 * len(totals), max_iterations - steps.count) if extend else 0
     if extra < convergence.SEGMENTS:
         rel, t = convergence.drift(segments)
-        warnings.warn("%s: after %d steps the image still drifts: the mean of the second half of the %d averaged "
-                      "steps differs from the first half's by %+.2g %% (t %.1f); the scene reflects almost "
-                      "everything and needs a longer burn-in: %s" % (plugin, steps.count, len(totals), 100 * rel, t,
-                                                                  "raise max_iterations (now %d)" % max_iterations
-                                                                  if extend else "raise burn_in and iterations"),
-                      RuntimeWarning, stacklevel=3)
+        what = ("after %d steps the image still drifts: the mean of the second half of the %d averaged steps differs "
+                "from the first half's by %+.2g %% (t %.1f); the scene reflects almost everything and needs a longer "
+                "burn-in" % (steps.count, len(totals), 100 * rel, t))
+        if extend:
+            raise support.NotConverged(plugin, what, steps.count + 2 * len(totals), max_iterations,
+                                       "render this scene with 'qmc_lighttrace', whose particles need no burn-in")
+        warnings.warn("%s: %s: raise burn_in and iterations" % (plugin, what), RuntimeWarning, stacklevel=3)
         return False
     steps.extend(extra)
     return True

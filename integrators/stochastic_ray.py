@@ -78,8 +78,9 @@ class StochasticRayIntegrator(CoreIntegrator):
     furnace with albedo 0.5 about 12). After the planned steps a drift check compares
     the image mean of the first and second half of the averaged steps
     (:mod:`mi_plugins.convergence`); while it still drifts, the steps so far become
-    burn-in and twice as many are averaged. Both stop at ``max_iterations`` with a
-    ``RuntimeWarning`` naming the measured defect. **Sensors:** ``perspective``,
+    burn-in and twice as many are averaged. Where ``max_iterations`` leaves too little
+    room for either, the render is refused (``NotConverged``, naming the measured defect
+    and the steps needed). **Sensors:** ``perspective``,
     ``thinlens`` and ``batch`` (light paths connect to them); others (``orthographic``,
     ``radiancemeter``, ``irradiancemeter``, ``distant``) are refused, naming the sensor.
     **Refused:** participating media (use ``volpath``), integrators that call it per

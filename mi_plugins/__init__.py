@@ -105,10 +105,13 @@ def register():
     """Register every plugin of the package for the active Mitsuba variant.
 
     Returns a dict ``{kind: [plugin names]}``. Call it again after
-    ``mi.set_variant`` switches to another variant.
+    ``mi.set_variant`` switches to another variant. Also makes ``mi.render`` raise the
+    package's own exceptions as they are (:mod:`mi_plugins.render_errors`).
     """
-    from . import registry
-    return registry.register_all(check_variant())
+    from . import registry, render_errors
+    registered = registry.register_all(check_variant())
+    render_errors.install()      # the package's errors reach mi.render's caller unwrapped
+    return registered
 
 
 def solve(scene, integrator=None, seed=0):

@@ -47,6 +47,18 @@ class Unsupported(ValueError):
         super().__init__("%s: %s is not supported: %s; %s" % (integrator, subject, why, instead))
 
 
+class NotConverged(RuntimeError):
+    """An iterative integrator whose average would stay measurably biased within its
+    stated limit of iterations: raised instead of returning that image. ``needed``: the
+    iterations the measurement predicts (0 where it cannot say)."""
+
+    def __init__(self, integrator, what, needed, limit, instead):
+        self.integrator, self.needed, self.limit = integrator, int(needed), int(limit)
+        need = "it needs about %d iterations" % needed if needed else "it needs more iterations"
+        super().__init__("%s: not converged within max_iterations=%d: %s; %s: raise max_iterations to at least %d, "
+                         "or %s" % (integrator, limit, what, need, max(needed, 2 * limit), instead))
+
+
 def plugin_name(obj):
     """The Mitsuba plugin name of ``obj`` (its class name where the table does not know it)."""
     name = obj.class_name() if hasattr(obj, "class_name") else type(obj).__name__

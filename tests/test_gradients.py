@@ -13,7 +13,6 @@ import pytest
 from mi_plugins import analytic, cli
 from mi_plugins.analytic import classic, gradient_matrix
 from mi_plugins.analytic.gradients import check_gradient, render_gradient_runs
-from mi_plugins.passes import root_cause
 
 import budget
 
@@ -189,10 +188,9 @@ def test_package_integrators_refuse_gradients(plugin):
     dr.enable_grad(params[key])
     params.update()
     for args in ((), (params,)):
-        with pytest.raises(RuntimeError) as info:
+        with pytest.raises(NotImplementedError) as info:      # the package's own error, not drjit.custom's
             mi.render(scene, *args, spp=1)
-        cause = root_cause(info.value)
-        assert isinstance(cause, NotImplementedError) and key in str(cause) and "'prb'" in str(cause), cause
+        assert key in str(info.value) and "'prb'" in str(info.value), info.value
     params[key] = original
     params.update()
     image = np.array(mi.render(scene, spp=1))

@@ -146,6 +146,7 @@ TABLE = {
         "max_depth": INT(-1, good=[-1, 0, 5]),
         "delta_surfaces": CHOICE(("refuse", "camera_only")),
         "adaptive": BOOL(),
+        "max_iterations": INT(1, hi=1 << 20, good=[1, 200]),
         "point_sources": BOOL(),
         "display": CHOICE(("gather", "smooth", "patches", "baked")),
         "preview_every": INT(0, good=[0, 4]),

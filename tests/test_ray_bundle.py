@@ -24,7 +24,7 @@ import pytest
 
 import drjit as dr
 import mitsuba as mi
-from mi_plugins import analytic
+from mi_plugins import analytic, support
 from mi_plugins.analytic import harness
 from mi_plugins.support import Unsupported
 from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
@@ -1071,6 +1071,20 @@ def test_albedo_one_room_at_the_defaults_extends_its_burn_in():
     with pytest.warns(RuntimeWarning, match=r"not converged after a burn-in of 8 iterations: .* about \d+(\.\d+)? % "
                                             r"too low"):
         mi.render(scene, spp=1, seed=budget.seed(40))
+
+
+def test_a_burn_in_beyond_max_iterations_is_refused_not_averaged():
+    """The same room with max_iterations below what its burn-in needs: refused, naming the
+    iterations the prediction asks for, before they are run (formerly a warning and an
+    image 9.6 % too dark, z -6.3, in such a room). The test of the test is the one above:
+    with the default limit the same room renders and matches its exact radiance."""
+    case = analytic.cases()["constant_lightsource_sierpinski"](resolution=4)
+    scene = case.scene({"type": "ray_bundle", "max_iterations": 24})
+    with pytest.raises(support.NotConverged, match=r"^ray_bundle: not converged within max_iterations=24: after a "
+                                                   r"burn-in of 8 iterations .* it needs about (\d+) iterations") \
+            as info:
+        mi.render(scene, spp=1, seed=budget.seed(40))
+    assert info.value.needed > 24 and scene.integrator().progress.total <= 24, info.value
 
 
 def test_the_default_patch_size_sees_merged_meshes():

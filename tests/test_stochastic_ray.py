@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import mitsuba as mi
-from mi_plugins import analytic
+from mi_plugins import analytic, support
 from mi_plugins.analytic import harness, stats
 
 import budget
@@ -110,6 +110,21 @@ def test_short_chains_without_burn_in_show_the_power_defect():
     assert ok["passed"], ok["failures"]
     bad = harness.compare(images, case.expected(-1))
     assert not bad["passed"] and bad["z"] < -20, (bad["z"], bad["failures"])
+
+
+def test_a_burn_in_beyond_max_iterations_is_refused_not_averaged():
+    """A furnace of albedo 0.95 needs a burn-in of about 250 steps for a power defect below
+    1e-3 (lambda^b / (1 - lambda)^2): with max_iterations=64 the render is refused, naming the
+    steps needed, instead of returning an image about 10 % too dark. The test of the test:
+    at the default limit (4096) the same furnace renders and matches its exact radiance."""
+    case = analytic.furnace(0.95, 0.05, "box", resolution=4)
+    with pytest.raises(support.NotConverged, match=r"^stochastic_ray: not converged within max_iterations=64: the "
+                                                   r"scene's effective albedo is 0\.9\d*: a burn-in of (\d+) steps"):
+        mi.render(case.scene(integrator(iterations=8, max_iterations=64)), spp=1, seed=budget.seed(3))
+    means = [float(np.mean(mi.render(case.scene(integrator(iterations=8)), spp=4, seed=budget.seed(3 + k))))
+             for k in range(8)]
+    se = float(np.std(means, ddof=1) / np.sqrt(len(means)))
+    budget.close(np.mean(means), 1.0, se, slack=0.002, what="albedo-0.95 furnace at the default max_iterations")
 
 
 def test_hide_emitters():

@@ -5,7 +5,7 @@ import numpy as np
 
 from mi_plugins import seeds
 from mi_plugins.integrators import display
-from mi_plugins.integrators.core import Frame
+from mi_plugins.integrators.core import MAX_ITERATIONS, Frame
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
 from mi_plugins import refinement
 from mi_plugins.integrators.ray_bundle import checks, refine, split
@@ -265,8 +265,13 @@ class RayBundleIntegrator(SolutionIntegrator):
        - after the averaged iterations, predict the average's bias from the chains (their
          reflected share of the power gives the contraction ratio; the growth between the
          halves of the average) and, above 1 %, extend the burn-in by what the prediction
-         asks for, up to 8x the planned iterations; a RuntimeWarning gives the numbers
-         where the cap is reached, or always with false
+         asks for; with false a RuntimeWarning gives the numbers instead
+     * - max_iterations
+       - int
+       - 8 x ``iterations`` x spp
+       - >= 1: the most iterations the extended burn-in may reach; a render that would
+         need more is refused (``NotConverged``, naming the iterations it needs) instead
+         of returning an image darker than the 1 % the prediction allows
 
     **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global
     iterations of every chain (``burn_in`` once); every averaged iteration traces one
@@ -337,6 +342,8 @@ class RayBundleIntegrator(SolutionIntegrator):
         self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
         self.delta_surfaces = p.choice("delta_surfaces", "refuse", ("refuse", "camera_only"))
         self.adaptive = p.bool("adaptive", True)
+        self.max_iterations = p.int("max_iterations", None, lo=1, hi=MAX_ITERATIONS,
+                                    note="default: 8 x the render's planned iterations")
         self.point_sources = p.bool("point_sources", True)
         self.refine, self.refine_threshold, self.min_patch_size, self.max_patches = refinement.read_parameters(p)
         self.refinements = []

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import seeds
+from mi_plugins import seeds, support
 from mi_plugins.integrators.ray_bundle import convergence, limits
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
 from mi_plugins.integrators.display import edge_pixels
@@ -215,7 +215,8 @@ class Run:
         if state is None:
             state = self.transport.initial(chain_directions(directions.next()))
         dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
-        cap, used, burn_in, self.extended = convergence.EXTENSION_CAP * self.total, 0, self.burn_in, 0
+        cap = max(integ.max_iterations or convergence.EXTENSION_CAP * self.total, self.total)
+        used, burn_in, self.extended = 0, self.burn_in, 0
         while True:
             state = self.state = self._iterations(steps, directions, state, burn_in)
             used += burn_in + window
@@ -224,16 +225,21 @@ class Run:
             v = convergence.verdict(*self.trace.numpy(window), used - window)
             if v is None or v.converged:
                 return
-            if not integ.adaptive or used + 1 + window > cap:
+            if not integ.adaptive:
                 warnings.warn("ray_bundle: not converged after a burn-in of %d iterations: %s. Raise iterations "
                               "and burn_in (the burn-in must exceed the number of bounces that carry most of the "
-                              "light)%s." % (used - window, v.text(), "" if not integ.adaptive else
-                                             "; the burn-in was extended up to its cap (%dx the planned iterations)"
-                                             % convergence.EXTENSION_CAP), RuntimeWarning, stacklevel=4)
+                              "light), or set adaptive=true." % (used - window, v.text()), RuntimeWarning,
+                              stacklevel=4)
                 return
             # the window becomes burn-in, followed by the further burn-in the measured growth
-            # asks for (within the cap); then a new window is averaged
-            burn_in = min(v.burn_in_needed(), cap - used - window)
+            # asks for; then a new window is averaged. Beyond max_iterations: refused, before
+            # the work, instead of an image darker than the prediction allows
+            burn_in = v.burn_in_needed()
+            if used + burn_in + window > cap:
+                raise support.NotConverged(
+                    integ.plugin, "after a burn-in of %d iterations %s" % (used - window, v.text()),
+                    used + burn_in + window, cap, "render this scene with 'qmc_lighttrace', whose particles need no "
+                                                  "burn-in")
             self.extended += burn_in + window
             steps.count = burn_in + window
             steps.state.total += burn_in + window
