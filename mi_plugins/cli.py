@@ -1,4 +1,4 @@
-"""Command line interface: ``mi-plugins verify`` and ``mi-plugins render``.
+"""Command line interface: ``mi-plugins verify``, ``render``, ``demo`` and ``view``.
 
 Also available as ``python -m mi_plugins``.
 """
@@ -65,7 +65,23 @@ def _parser():
     r.add_argument("--tasks", type=int, default=None, metavar="N",
                    help="with --workers/--scheduler: tasks the render is split into (default 16; the image "
                         "depends on it, not on the number of workers)")
+    w = sub.add_parser("view", help="write one self-contained HTML page (WebGL, no network) that shows a saved "
+                                    "solution's baked radiance from a walkthrough camera")
+    w.add_argument("solution", metavar="SOLUTION.npz", help="a solution saved by Solution.save")
+    w.add_argument("--scene", required=True, metavar="SCENE.xml", help="the scene it was computed for (its geometry)")
+    w.add_argument("-o", "--output", required=True, metavar="OUT.html")
+    w.add_argument("--sensor", type=int, default=0, help="the scene's sensor the camera starts from (default 0)")
+    w.add_argument("--exposure", type=float, default=0.0, help="initial exposure in stops, -20 .. 20 (default 0)")
+    w.add_argument("-D", dest="defines", action="append", default=[], metavar="name=value",
+                   help="set an XML $parameter (repeatable)")
     return p
+
+
+def _view(args):
+    from .viewer import view_files
+    path = view_files(args.solution, args.scene, args.output, args.sensor, args.exposure, _parse_defines(args.defines))
+    print("wrote %s (%.0f kB)" % (path, os.path.getsize(path) / 1e3))
+    return 0
 
 
 def _verify(args):
@@ -267,6 +283,8 @@ def main(argv=None):
         if args.command == "demo":
             from . import demo
             return demo.run(args.out, args.seconds, args.resolution, check=not args.no_check)
+        if args.command == "view":
+            return _view(args)
         return _verify(args) if args.command == "verify" else _render(args)
     except KeyboardInterrupt:
         print("mi-plugins: interrupted", file=sys.stderr)

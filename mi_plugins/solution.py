@@ -23,6 +23,7 @@ patch side receives does not depend on the camera. A :class:`Solution` holds it:
 the smooth display and for :meth:`to_ply`. :meth:`save` / :meth:`load` store it and
 give it back for a scene that matches (shape count, triangle and patch counts,
 content); a solution is obtained with ``mi_plugins.solve(scene, integrator, seed)``.
+:meth:`to_ply`, :meth:`to_gltf` and :meth:`to_html` export its baked radiance.
 """
 import io
 import json
@@ -235,6 +236,22 @@ class Solution:
         (:mod:`mi_plugins.solution_export`). Returns the paths."""
         from mi_plugins.solution_export import write_meshes
         return write_meshes(self, folder, display_colors)
+
+    def to_gltf(self, path):
+        """Write every shape with its per-vertex radiance as one glTF 2.0 file (``.glb`` or
+        ``.gltf``): ``COLOR_0`` linear, scaled into [0, 1] by the ``radiance_scale`` its
+        ``extras`` state; ``_RADIANCE`` the HDR radiance (:mod:`mi_plugins.gltf_export`).
+        Returns the path."""
+        from mi_plugins.gltf_export import write_gltf
+        return write_gltf(self, path)
+
+    def to_html(self, path, scene, sensor=0, exposure=0.0):
+        """Write a self-contained HTML page (WebGL 2, no network) that shows the baked
+        radiance from a walkthrough camera starting at ``scene``'s sensor ``sensor``, at
+        ``exposure`` stops (-20 .. 20; default 0: the PNG writer's tone curve)
+        (:mod:`mi_plugins.viewer`). ``scene``: the solution's scene. Returns the path."""
+        from mi_plugins.viewer import write_html
+        return write_html(self, path, scene, sensor, exposure)
 
 
 def _renumbered(table, rounds, order, split_by):

@@ -52,26 +52,47 @@ def shape_faces(field, elements):
     return ids, local.reshape(-1, 3)
 
 
-def write_meshes(solution, folder, display_colors=False):
-    """Write one PLY per shape of ``solution`` into ``folder``; returns the paths."""
+def baked_shapes(solution, what="Solution.to_ply"):
+    """Every shape of ``solution`` as [(name, positions (V, 3), faces (F, 3), front (V, 3),
+    back (V, 3))]: its patches' triangles wound along the patch normals (side 0), the
+    vertices of the smooth field and their radiance (side 0, side 1; emission included).
+    Names are the shapes' ids made file-safe and unique. ``what``: the caller, for the
+    error of an incomplete solution."""
     field = solution.field
     if field is None or solution.radiance is None:
-        raise ValueError("Solution.to_ply: this solution is not complete; get it with mi_plugins.solve(scene, ...) "
-                         "or Solution.load(path, scene)")
-    os.makedirs(folder, exist_ok=True)
+        raise ValueError("%s: this solution is not complete; get it with mi_plugins.solve(scene, ...) "
+                         "or Solution.load(path, scene)" % what)
     radiance = solution.vertex_values("radiance")                    # (V, 2, 3)
-    scale = max(float(np.percentile(radiance[:, 0], 99)), 1e-12) if display_colors else 1.0
-    shapes = solution.meta["shapes"]
-    paths, used = [], set()
-    for k, shape in enumerate(shapes):
+    bad = int(np.count_nonzero(~np.isfinite(radiance).all(axis=(1, 2))))
+    if bad:
+        raise ValueError("%s: the solution's radiance is not finite at %d of %d vertices; solve the scene again"
+                         % (what, bad, len(radiance)))
+    out, used = [], set()
+    for k, shape in enumerate(solution.meta["shapes"]):
         ids, faces = shape_faces(field, np.flatnonzero((field.element_shape == k) & field.leaf))
         name = re.sub(r"[^A-Za-z0-9_.-]+", "_", shape["id"] or "shape") or "shape"
         while name in used:
             name += "_%d" % k
         used.add(name)
+        out.append((name, field.vertex_positions[ids], faces, radiance[ids, 0], radiance[ids, 1]))
+    return out
+
+
+def display_scale(solution):
+    """The radiance shown as white by the 8-bit display colours: the 99th percentile of
+    every side-0 vertex value (all channels), at least 1e-12."""
+    return max(float(np.percentile(solution.vertex_values("radiance")[:, 0], 99)), 1e-12)
+
+
+def write_meshes(solution, folder, display_colors=False):
+    """Write one PLY per shape of ``solution`` into ``folder``; returns the paths."""
+    shapes = baked_shapes(solution)
+    os.makedirs(folder, exist_ok=True)
+    scale = display_scale(solution) if display_colors else 1.0
+    paths = []
+    for name, positions, faces, front, back in shapes:
         path = os.path.join(folder, name + ".ply")
-        write_ply(path, field.vertex_positions[ids], faces, radiance[ids, 0], radiance[ids, 1],
-                  _srgb(radiance[ids, 0] / scale) if display_colors else None)
+        write_ply(path, positions, faces, front, back, _srgb(front / scale) if display_colors else None)
         paths.append(path)
     return paths
 
