@@ -54,13 +54,18 @@ def timed(fn, repeats):
     return best, out
 
 
-def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def arguments(doc):
+    """The options of this benchmark and of distributed_threads.py, parsed."""
+    p = argparse.ArgumentParser(description=doc.splitlines()[0])
     p.add_argument("--resolution", type=int, default=128)
     p.add_argument("--tasks", type=int, default=16)
     p.add_argument("--repeats", type=int, default=2, help="renders per configuration (the fastest counts)")
     p.add_argument("--integrators", default=",".join(CONFIGS))
-    args = p.parse_args()
+    return p.parse_args()
+
+
+def main():
+    args = arguments(__doc__)
     clusters = {"1 worker x 1 thread": (1, 1), "1 worker x 2 threads": (1, 2), "2 workers x 1 thread": (2, 1)}
     rows = []
     for name in args.integrators.split(","):

@@ -13,7 +13,9 @@ something of the package held them in a reference cycle. So:
 - its renders pause the collector (:func:`paused`): nothing is freed by a collection
   while they trace, in any thread;
 - a distributed worker runs every task so paused and collects at its end, in the task's
-  own thread, where nothing is traced (:func:`task`).
+  own thread, where nothing is traced (:func:`task`), one task at a time per process
+  (:mod:`mi_plugins.distributed.serial`): the collector's switch belongs to the process,
+  and a task ending beside another would turn it on while the other traces.
 """
 import contextlib
 import gc

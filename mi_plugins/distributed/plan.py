@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mi_plugins import collection
+from mi_plugins.distributed import serial
 from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
 
 #: fewest chains of a ray_bundle chain group: a group runs every iteration's kernels, so
@@ -170,13 +170,14 @@ _LOADED = {}     # (bundle digest, parameters) -> scene, per worker process
 
 
 def worker_task(fn):
-    """A worker function run as every task runs: the garbage collector paused meanwhile
-    and run at its end in the task's own thread (:func:`mi_plugins.collection.task`), an
-    error sent back as :func:`_portable` makes it, raised after the collection without the
-    original (whose traceback would keep the task's frames, and what they hold, alive)."""
+    """A worker function run as every task runs: alone in its process, the garbage
+    collector paused meanwhile and run at its end in the task's own thread
+    (:func:`.serial.task`), an error sent back as :func:`_portable` makes it, raised after
+    the collection without the original (whose traceback would keep the task's frames, and
+    what they hold, alive)."""
     @functools.wraps(fn)
     def run(*args, **kwargs):
-        with collection.task():
+        with serial.task():
             try:
                 return fn(*args, **kwargs)
             except Exception as error:

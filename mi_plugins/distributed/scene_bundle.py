@@ -31,24 +31,29 @@ found in none is tried from the working directory. Absolute names are used as th
 
 The layout: files keep their positions relative to a common root (which includes any
 folder outside the main one that a ``<path>`` or ``..`` reaches), and :func:`materialize`
-writes them once per worker process into a temporary directory named by the hash,
-creating the ``<path>`` folders even where nothing is shipped in them. Mitsuba on the
-worker reads the unchanged XML, so every search list names the same folders in the same
-order; those hold only the shipped files, so no earlier folder can match instead, and
-every name resolves to the same file. A file named by an absolute path, or found through
-an absolute ``<path>``, is not shipped: it must exist at that path on every worker (a
-shared filesystem), and :func:`materialize` says so by name when it does not (absolute
-``<path>`` folders included). A file Mitsuba finds only through the working directory or
-its installation folder would not be found on a worker: :func:`bundle` refuses it by name.
+writes them once per machine into a temporary directory named by the hash (each file
+whole or not at all, then a completion marker: safe when the tasks and workers of a
+machine write it at once), creating the ``<path>`` folders even where nothing is
+shipped in them. Mitsuba on the worker reads the unchanged XML, so every search list
+names the same folders in the same order; those hold only the shipped files, so no
+earlier folder can match instead, and every name resolves to the same file. A file
+named by an absolute path, or found through an absolute ``<path>``, is not shipped: it
+must exist at that path on every worker (a shared filesystem), and :func:`materialize`
+says so by name when it does not (absolute ``<path>`` folders included). A file Mitsuba
+finds only through the working directory or its installation folder would not be found
+on a worker: :func:`bundle` refuses it by name.
 """
+import contextlib
 import hashlib
 import os
 import tempfile
+import uuid
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
 SHIPPED, SHARED, LOCAL = "shipped", "shared", "local"   # in the bundle; absolute path; this machine only
 MAX_INCLUDE_DEPTH = 15                                   # Mitsuba's ParserConfig default
+COMPLETE = ".complete"                                   # a bundle's marker: every file written
 
 
 @dataclass
@@ -180,21 +185,46 @@ def bundle(scene_file, params=None):
     return SceneBundle(os.path.relpath(scene_file, root), files, sorted(walk.absolute), h.hexdigest()[:16], folders)
 
 
+def _write(path, data):
+    """``data`` at ``path``, whole or not at all: written under a name of its own (unique
+    across the threads and processes of the machine; permissions as the umask makes
+    them), then renamed over ``path``."""
+    folder, name = os.path.split(path)
+    os.makedirs(folder, exist_ok=True)
+    tmp = os.path.join(folder, ".%s.%d.%s.tmp" % (name, os.getpid(), uuid.uuid4().hex))
+    try:
+        with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+
+
+def _complete(root, b):
+    """Bundle ``b`` is whole under ``root``: its marker and every file at its size."""
+    try:
+        return os.path.exists(os.path.join(root, COMPLETE)) and all(
+            os.path.getsize(os.path.join(root, name)) == len(data) for name, data in b.files.items()) and all(
+            os.path.isdir(os.path.join(root, d)) for d in b.folders)
+    except OSError:
+        return False
+
+
 def materialize(b):
-    """Write bundle ``b`` (once per process and digest) and return its scene file's path."""
+    """Write bundle ``b`` (once per machine and digest) and return its scene file's path.
+    Safe when threads and processes of one machine write the same bundle at once: each
+    file appears whole (:func:`_write`), and the bundle's marker only after every file,
+    so a caller that finds the marker finds every file; one that does not writes them
+    all again (the same bytes)."""
     root = os.path.join(tempfile.gettempdir(), "mi_plugins_scenes", b.digest)
-    done = os.path.join(root, ".complete")
-    if not os.path.exists(done):
+    if not _complete(root, b):
         for d in b.folders:
             os.makedirs(os.path.join(root, d), exist_ok=True)
         for name, data in b.files.items():
-            path = os.path.join(root, name)
-            os.makedirs(os.path.dirname(path), exist_ok=True)
-            tmp = "%s.%d.tmp" % (path, os.getpid())
-            with open(tmp, "wb") as f:
-                f.write(data)
-            os.replace(tmp, path)           # atomic: workers of one machine may race
-        open(done, "w").close()
+            _write(os.path.join(root, name), data)
+        _write(os.path.join(root, COMPLETE), b"")
     missing = [p for p in b.absolute if not os.path.exists(p)]
     if missing:
         raise FileNotFoundError("the scene references %s by absolute path, which this worker does not have; "
