@@ -406,12 +406,10 @@ class CoreIntegrator(mi.SamplingIntegrator):
             image = frame.develop(develop)
         return frame.result if frame.result is not None else image
 
-    def distributed_split(self, scene):
-        """How a distributed render of ``scene`` splits (:mod:`mi_plugins.distributed.plan`):
-        None (independent passes, the default), 'particles' (a first phase of particle
-        ranges, summed, then passes: :meth:`trace_particles` and :meth:`render_task` with
-        the sum) or 'chains' (groups of chains whose per-patch averages are summed, then
-        final-gathering passes)."""
+    def distributed_split(self, scene, spp):
+        """How a distributed render of ``scene`` with ``spp`` splits
+        (:mod:`mi_plugins.distributed_split`): None (independent passes, the default), or
+        a declaration of a first phase whose sums the image's tasks render with."""
         return None
 
     def run_steps(self, frame, steps, step, after=None, stage=None):

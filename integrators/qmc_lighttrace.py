@@ -22,6 +22,7 @@ from mi_plugins.integrators.qmc_store import Layers
 from mi_plugins.integrators.qmc_surfaces import Surfaces
 from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters
 from mi_plugins.solution import Solution
+from mi_plugins.distributed_split import ParticleRanges
 from mi_plugins.params import Params
 
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
@@ -314,7 +315,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         return darkness.with_splits(table, self.dark_record)     # (a distributed render's record)
 
     # ------------------------------------------------------------------ distributed parts
-    def distributed_split(self, scene):
+    def distributed_split(self, scene, spp):
         """A distributed render first traces disjoint ranges of the particle sequence
         (:meth:`trace_particles`), sums them, then renders passes with the sum
         (:meth:`render_with_particles`); adaptive termination is sequential: refused."""
@@ -322,7 +323,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
                              "split; valid for distributed rendering: no epsilon, a fixed samples count"
                              % self.epsilon)
-        return "particles"
+        return ParticleRanges(paths=self.samples)
 
     def trace_particles(self, scene, start, count, seed):
         """The deposits (layers, K, 2, 3) of the paths start .. start + count - 1."""

@@ -17,6 +17,7 @@ from mi_plugins.integrators.ray_bundle.limits import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
 from mi_plugins import darkness
 from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters, scene_bounds
+from mi_plugins.distributed_split import ChainGroups
 from mi_plugins.params import Params
 from mi_plugins.solution import Solution
 
@@ -515,18 +516,14 @@ class RayBundleIntegrator(SolutionIntegrator):
                         direct_in_tables=not self.first_shot)
 
     # ------------------------------------------------------------------ distributed parts
-    def distributed_split(self, scene):
+    def distributed_split(self, scene, spp):
         """With ``average_diffuse`` on a purely diffuse scene a distributed render splits
         into groups of chains (:meth:`chain_averages`), whose per-patch averages are summed,
         then final-gathering passes from the sum (:meth:`gather_from`); otherwise into
         passes (see :mod:`.split`)."""
-        return "chains" if split.splits_by_chains(self, scene) else None
-
-    def chain_count(self):
-        return self.chains or DEFAULT_CHAINS
-
-    def final_passes(self, spp):
-        return split.final_passes(self, spp)
+        if not split.splits_by_chains(self, scene):
+            return None
+        return ChainGroups(chains=self.chains or DEFAULT_CHAINS, final_passes=split.final_passes(self, spp))
 
     def chain_averages(self, scene, seed, spp, chains):
         """Sums (K, 3) and counts (K,) of the diffuse averages of ``chains`` chains."""

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mi_plugins.distributed import serial
+from mi_plugins.distributed_split import ChainGroups, ParticleRanges
 from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
 
 #: fewest chains of a ray_bundle chain group: a group runs every iteration's kernels, so
@@ -84,21 +85,25 @@ class Phase:
 def phases(integrator, scene, spp, tasks, seed):
     """The phases of a render of ``scene`` with ``spp`` samples in ``tasks`` tasks:
     (first phase or None, image phase, spp per unit of the image phase's merge weight).
-    The integrator says how it splits (``distributed_split``: the package's integrators
-    have it; every other integrator renders passes)."""
-    split = getattr(integrator, "distributed_split", lambda scene: None)(scene)
-    if split == "particles":
-        paths = integrator.samples
+    The integrator declares how it splits (``distributed_split(scene, spp)``: a
+    :class:`~mi_plugins.distributed_split.ParticleRanges` or
+    :class:`~mi_plugins.distributed_split.ChainGroups`; None, or an integrator without it:
+    passes)."""
+    split = getattr(integrator, "distributed_split", lambda scene, spp: None)(scene, spp)
+    if isinstance(split, ParticleRanges):
+        paths = split.paths
         first = Phase("particles", particle_tasks(paths, tasks, seed), run_particles,
                       lambda results, ranges: (merge_particles(results, ranges), paths, agreed(results)))
         return first, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
-    if split == "chains":
-        chains = integrator.chain_count()
-        groups = min(tasks, max(1, chains // MIN_CHAINS))
-        first = Phase("chains", chain_tasks(chains, spp, groups, seed), run_chains,
+    if isinstance(split, ChainGroups):
+        groups = min(tasks, max(1, split.chains // MIN_CHAINS))
+        first = Phase("chains", chain_tasks(split.chains, spp, groups, seed), run_chains,
                       lambda results, groups: merge_chains(results, groups) + (agreed(results),))
-        total = integrator.final_passes(spp)
+        total = split.final_passes
         return first, Phase("gathering", gathering_tasks(total, tasks, seed), run_gathering), spp / max(total, 1)
+    if split is not None:
+        raise TypeError("%s.distributed_split returned %r: expected None, ParticleRanges or ChainGroups"
+                        % (type(integrator).__name__, split))
     return None, Phase("passes", pass_tasks(spp, tasks, seed), run_pass), 1.0
 
 
