@@ -14,7 +14,9 @@ toward the eye, with no gather ray:
 - ``baked``: the reflected radiance interpolated from the vertex values of the patches'
   flat radiance (what :meth:`Solution.to_ply` exports and a mesh viewer shows).
 
-Elsewhere (glossy, mixed, bump-mapped x) the pixel falls back to the gather of
+Elsewhere (glossy, mixed, bump-mapped x, and x on a patch at the mouth of a narrow gap,
+whose one value mixes the gap's trapped light with the open side's: ``mi_plugins.gaps``)
+the pixel falls back to the gather of
 ``qmc_gather``: one light sample and BSDF samples whose paths continue to the next
 purely diffuse surface y, which adds its direct light and reads the solution there
 (interpolated for ``smooth`` and ``baked``, flat for ``patches``). The emission seen
@@ -91,8 +93,8 @@ class View:
 
     def __init__(self, solution, table, mode):
         self.mode, self.table, self.solution = mode, table, solution
-        self.surfaces = Surfaces(table.scene)
-        self.all_diffuse = bool(np.all(self.surfaces.diffuse_np))
+        self.surfaces = Surfaces(table.scene, table)
+        self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_mouth
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
         self.adds_direct = not solution.direct_in_tables
@@ -258,11 +260,11 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         cam = frame.camera_pass()
         seed = seeds.stream(frame.seed, "display", k)
         chain, si, bsdf, used, active = paths.visible_points(cam, seed, evaluate=False)
-        diffuse = view.surfaces.diffuse(si, active)
+        diffuse = view.surfaces.readable(si, active)       # (elsewhere: gathered)
         rng = seeds.pcg(cam.count, seed, "camera_path", 2)
         value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng,
                              light_samples(cam, seeds.stream(frame.seed, "display"), k))
-        if not view.all_diffuse:     # (a scene of purely diffuse surfaces has nothing to gather)
+        if not view.all_diffuse:     # (purely diffuse surfaces, no gap's mouth: nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value
         value = with_edges(frame, cam, chain, edges, value, seed)

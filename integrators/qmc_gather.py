@@ -11,8 +11,9 @@ samples). Each gather sample continues (:meth:`CameraPaths.continuation`):
 - y purely diffuse (``qmc_surfaces``): y's direct light (a light sample and a BSDF
   sample, MIS) plus the stored light of particles at their hit k >= 2, read from the
   table the path's remaining depth allows (``qmc_store.Layers``); the path ends;
-- y non-diffuse (glossy, delta, null, mixed lobes): a light sample (MIS) and a BSDF
-  sample that continues the path, Russian roulette after ``RR_DEPTH`` segments.
+- y non-diffuse (glossy, delta, null, mixed lobes), or on a patch at a narrow gap's
+  mouth (``Surfaces.readable``): a light sample (MIS) and a BSDF sample that continues
+  the path, Russian roulette after ``RR_DEPTH`` segments.
 
 Every vertex counts its segments as Mitsuba's ``path`` does (``max_depth`` D: emission
 at segment <= D, a light sample or a continuation only below D), so the image agrees
@@ -156,7 +157,7 @@ class CameraPaths:
             result += dr.select(active, beta * mi.Color3f(emitter.eval(hit, active)) * w, 0.0)
             go = active & hit.is_valid() & ~last & (segment < depth)
             bsdf = hit.bsdf(ray)
-            diffuse = surfaces.diffuse(hit, go)
+            diffuse = surfaces.readable(hit, go)      # (a patch at a gap's mouth: continue)
             result += beta * light_sample(scene, hit, bsdf, mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
             # a diffuse hit: the stored light of particle hits k >= 2 that fit in the depth left
             index, readable = layers.read_table(mi.Int32(depth) - mi.Int32(segment))

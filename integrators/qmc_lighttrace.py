@@ -57,8 +57,11 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     samples, by multiple importance sampling. A gather sample reaching a purely diffuse
     y reads y's direct light (light and BSDF sample, MIS) plus the stored light of
     particle hits k >= 2, x rho(y) / pi (Keller's L_d computed separately, at y: the
-    patches never average the direct light's steep gradients); a non-diffuse y continues
-    the path (light sample, BSDF sample) to the next diffuse surface. ``max_depth`` is
+    patches never average the direct light's steep gradients); a non-diffuse y, or a y on
+    a patch at the mouth of a gap narrower than the patch (a ceiling patch reaching past
+    the rim of a lamp facing it: its one value would mix the gap's trapped light with the
+    room's, ``mi_plugins.gaps``), continues the path (light sample, BSDF sample) to the
+    next diffuse surface. ``max_depth`` is
     Mitsuba's: every estimate holds exactly the paths of at most D segments (the table
     read at y holds the particle hits that fit in the depth the camera path has left).
     The eye rays are traced in passes of at most 2^22 gather lanes (eye rays x SR, about
@@ -351,7 +354,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             return self.render_display(frame, solution, table)
         tables = solution.tables.reshape(-1, 3) if solution.tables.size else np.zeros((2, 3))   # (never width 1)
         stored = FlatTables(table, mi.Color3f(*(mi.Float(tables[:, c]) for c in range(3))))
-        paths = CameraPaths(scene, table, Surfaces(scene), self.layers, stored, self.max_depth, self.mirror_depth,
+        paths = CameraPaths(scene, table, Surfaces(scene, table), self.layers, stored, self.max_depth, self.mirror_depth,
                             self.hide_emitters)
         # passes of a bounded number of gather lanes (their memory: about 110 bytes each)
         frame.camera_passes(per_pixel, passes)

@@ -24,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import support
+from mi_plugins.gaps import mouth_patches
 
 #: BSDF wrappers whose reflection depends on a perturbed frame (Mitsuba class names)
 VIEW_DEPENDENT_WRAPPERS = ("BumpMap", "NormalMap")
@@ -39,9 +40,13 @@ def purely_diffuse(bsdf):
 
 
 class Surfaces:
-    """Per-shape classification of a scene, for kernels: :meth:`diffuse` per hit."""
+    """Per-shape classification of a scene, for kernels: :meth:`diffuse` per hit; with the
+    scene's patch ``table``, :meth:`readable` too."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, table=None):
+        mouths = mouth_patches(table) if table is not None else np.zeros(0, bool)
+        self.table, self.any_mouth = table, bool(mouths.any())
+        self._mouth = mi.UInt32(np.concatenate([mouths, [False, False]]).astype(np.uint32))   # (never width 1)
         shapes = list(scene.shapes())
         self.diffuse_np = np.array([purely_diffuse(s.bsdf()) for s in shapes], dtype=bool)
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64) if shapes else \
@@ -59,6 +64,16 @@ class Surfaces:
         active = mi.Bool(active) & si.is_valid()
         shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
         return active & (dr.gather(mi.UInt32, self._diffuse_by_id, shape_id, active) != 0)
+
+    def readable(self, si, active=True):
+        """Per lane: :meth:`diffuse`, and not on a patch at the mouth of a narrow gap
+        (:mod:`mi_plugins.gaps`: its one value mixes the light trapped in the gap with the
+        open side's); a camera path continues at the other diffuse hits, as on a glossy
+        surface, instead of reading the stored light there."""
+        diffuse = self.diffuse(si, active)
+        if not self.any_mouth:
+            return diffuse
+        return diffuse & (dr.gather(mi.UInt32, self._mouth, self.table.patch(si), diffuse) == 0)
 
 
 def geometric_cosine(si, local):

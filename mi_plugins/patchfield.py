@@ -8,7 +8,9 @@ smooth display and the exported meshes show the field reconstructed from them:
   uv corners of the cells of analytic shapes), welded where they coincide in space and
   the patches' normals agree within :data:`WELD_ANGLE` (a crease, e.g. a floor meeting a
   wall, keeps a vertex per surface), across sub-triangles, triangles and shapes alike,
-  except across a surface standing on them (:func:`separate`: a panel on a floor);
+  except across a surface standing on them (:func:`separate`: a panel on a floor) and
+  between a patch at a narrow gap's mouth and the others (:mod:`mi_plugins.gaps`: its
+  value mixes the gap's trapped light with the open side's and is never read);
 - **vertex values**: at each vertex, an area-weighted least-squares plane through the
   values of the patches that share it, taken at their centroids, evaluated at the
   vertex; where those do not span the plane (the corner of a quad, the inside of a
@@ -39,6 +41,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins import darkness, tessellation
+from mi_plugins.gaps import mouth_patches
 
 #: patches whose normals differ by more than this (degrees) at a shared corner keep
 #: vertices of their own
@@ -190,6 +193,9 @@ class PatchField:
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0
         ids = weld(points, self.element_normals[element_of], extent)
         ids = separate(table.scene, ids, el["centre"][element_of], self.element_normals[element_of], extent)
+        mouth = mouth_patches(table)[self.element_patch[element_of]]      # (a gap's mouth: vertices of its own)
+        if mouth.any():
+            ids = np.unique(ids * 2 + mouth, return_inverse=True)[1].ravel()
         self.vertex_ids = np.zeros((self.elements, 4), np.int64)
         self.vertex_ids[used] = ids
         self.vertex_count = int(ids.max()) + 1 if len(ids) else 0

@@ -3,7 +3,7 @@
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
+from mi_plugins import gaps, seeds
 from mi_plugins.integrators import display
 from mi_plugins.integrators.core import MAX_ITERATIONS, Frame
 from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
@@ -293,7 +293,9 @@ class RayBundleIntegrator(SolutionIntegrator):
     the shape, why and what to use instead): participating media; BSDFs with a null lobe
     (``null``, ``mask``, ``thindielectric``, ``hair``, the polarizers), which the lines
     cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
-    specular surfaces (see ``delta_surfaces``). The delta lobe of a mixed BSDF (the
+    specular surfaces (see ``delta_surfaces``); a lamp facing a surface closer than half
+    the patch size (a lamp turned up under a ceiling: the light trapped between them would
+    leave as patch averages, ``mi_plugins.gaps``). The delta lobe of a mixed BSDF (the
     specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
     point (refused with a textured ``area`` light that Mitsuba samples wrongly: on a
     ``flip_normals`` rectangle, or a mesh whose uv map does not cover the unit square
@@ -403,6 +405,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         super().check_scene(scene, sensor)
         checks.check_scene(self.plugin, scene, self.delta_surfaces)
         checks.check_emitters(self.plugin, scene, self.first_shot)
+        gaps.refuse_trapped_lights(self.plugin, scene, self.patch_size_for(scene))
 
     def render_frame(self, frame):
         self._guarded(self._render_frame, frame.rollback, frame)
