@@ -22,10 +22,10 @@ from mi_plugins.conformance import compare, expectations, outcomes, runner
 
 #: every PASS of this file must detect a relative error of the image mean of this size
 #: (two-sample test against a noisy reference, 16 + 16 runs, < 3 minutes for the file;
-#: the measured powers are in docs/conformance.md, most are far better)
-POWER_LIMIT = 0.05
+#: the measured powers are in docs/conformance.md, most are far better): the runner's rule
+POWER_LIMIT = runner.POWER_LIMIT
 #: for a black reference (no relative error exists): the largest accepted absolute mean
-BLACK_LIMIT = 1e-4
+BLACK_LIMIT = runner.BLACK_LIMIT
 SEED = 1000
 
 #: combinations that FAIL on the current code: {(scene, integrator): measured defect}
@@ -140,6 +140,20 @@ def test_unmodified_wrapper_passes():
     r = conformance.run("cornell_mesh", _path_spec("path wrapped"), seed=budget.seed(SEED))
     _check(r)
     assert r.outcome == outcomes.PASS
+
+
+def test_a_blind_comparison_fails(monkeypatch):
+    """A PASS needs the power: the unmodified wrapper fails where the limit is below what
+    its budget detects; a black reference is judged by the absolute tolerance instead, and
+    fails where that limit is below the comparison's tolerance."""
+    monkeypatch.setattr(runner, "POWER_LIMIT", 1e-4)
+    r = conformance.run("cornell_mesh", _path_spec("path wrapped"), seed=budget.seed(SEED))
+    assert r.outcome == outcomes.FAIL and any("detects only" in f for f in r.failures), repr(r)
+    r = conformance.run("no_emitters", _path_spec("path wrapped"), seed=budget.seed(SEED))
+    assert r.outcome == outcomes.PASS, repr(r)
+    monkeypatch.setattr(runner, "BLACK_LIMIT", 1e-9)
+    r = conformance.run("no_emitters", _path_spec("path wrapped"), seed=budget.seed(SEED))
+    assert r.outcome == outcomes.FAIL and any("black reference" in f for f in r.failures), repr(r)
 
 
 def test_truncated_path_fails():

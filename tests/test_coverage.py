@@ -3,10 +3,14 @@ integrator (``mi_plugins.coverage``; the table is ``docs/coverage.md``).
 
 One test per cell: its outcome must be the expected one (PASS, or the documented
 REFUSED / N/A of ``mi_plugins.coverage.expected``), a PASS must see a relative error of
-the image mean of ``POWER_LIMIT`` and run within ``matrix.SLOWNESS_LIMIT`` times the
-reference's seconds per run. The catalogue test fails when the installed Mitsuba ships
-a plugin without a row. Tests of the matrix itself: a deliberately wrong integrator
-fails, a refusal with the wrong message fails, a slow cell fails.
+the image mean of ``matrix.POWER_LIMIT`` (no cell may declare a looser limit) and run
+within ``matrix.SLOWNESS_LIMIT`` times the reference's seconds per run. The cells that
+fail on the current code are listed in ``KNOWN_DEFECTS`` as strict expected failures
+(fixing one turns its test into an error, and its entry must then be deleted), those
+whose defect shows at some seeds only in ``INTERMITTENT_DEFECTS``. The
+catalogue test fails when the installed Mitsuba ships a plugin without a row. Tests of
+the matrix itself: a deliberately wrong integrator fails, a refusal with the wrong
+message fails, a slow cell fails, a cell blind to the power limit fails.
 """
 import math
 
@@ -18,11 +22,9 @@ import budget
 from mi_plugins.conformance import outcomes
 from mi_plugins.coverage import catalog, expected, matrix, rows
 
-#: every PASS of this file must detect a relative error of the image mean of this size,
-#: except the cells an integrator's ``Spec.power`` names with their reason (at most
-#: MAX_POWER_LIMIT: a cell blind to a factor of two would not be a test)
-POWER_LIMIT = 0.1
-MAX_POWER_LIMIT = 0.5
+#: every PASS of this file must detect a relative error of the image mean of this size
+#: (the matrix's rule: a cell's ``Spec.power`` entry may only be stricter)
+POWER_LIMIT = matrix.POWER_LIMIT
 #: the largest slowness a cell's ``Spec.slowness`` exception may allow, with its reason
 MAX_SLOWNESS_LIMIT = 50.0
 SEED = 2000
@@ -39,6 +41,36 @@ ALWAYS = ("bsdf:roughconductor", "bsdf:conductor", "bsdf:plastic", "bsdf:dielect
           "bsdf:bumpmap", "emitter:spot", "emitter:envmap", "format:rgba", "case:light_facing_ceiling",
           "case:negative_emission", "depth:2", "package:phong", "package:simulated_area", "case:textured_area_sphere",
           "sensor:radiancemeter")
+
+#: cells that FAIL on the current code, as strict expected failures: {(row, integrator): the
+#: measured defect}; fixing one turns its test into an error (delete its entry then)
+KNOWN_DEFECTS = {
+    ("sensor:irradiancemeter", "ray_bundle"): (
+        "blind: one pixel gathered at one camera sample per chain and iteration, and the meter's rays find the "
+        "small lamp by chance; at 16 runs x 8 spp it detects 24-37 % over seeds 2000-2003 and offsets 1-2, at 32 "
+        "runs 14-19 %; 10 % takes 64 chains of 8 x 8 lines and 32 runs (8.2-8.6 %, 4x the seconds)"),
+}
+#: cells whose defect shows at some seeds only: heavy-tailed runs (one run far above the
+#: others) leave them blind to POWER_LIMIT at some seeds at every budget a test can afford,
+#: and their bias is below what they can see; expected failures that may pass (XPASS, never
+#: a PASS): {(row, integrator): the measured defect}. The rough glass: Mitsuba's
+#: roughdielectric returns a BSDFSample.pdf that disagrees with its sampling for 0.1-4 % of
+#: the directions drawn from inside the glass beyond the critical angle (there eval / pdf
+#: averages 8-45 % above the albedo, its sample weight is right), and the package's light
+#: paths weigh a bounce by eval / pdf
+INTERMITTENT_DEFECTS = {
+    ("bsdf:roughdielectric", "stochastic_ray"): (
+        "+1.2 +- 0.2 % too bright (five runs of 64-256 x 256-1024 spp against path, z +6.7 together; +1.1 % "
+        "against ptracer) and heavy-tailed: at 16 runs x 256 spp it detects 3.0-4.4 % at 4 of 6 seeds, 14 % and "
+        "41 % at the others; at 32 x 512 1.9-10.5 %"),
+    ("bsdf:roughdielectric", "qmc_lighttrace"): (
+        "-1.3 +- 0.15 % against ptracer (z -9, 64 runs; path itself -0.4 %), z -6.3 to -6.8 against path at its "
+        "8 runs (t bound 7.3-8), and heavy-tailed (a run at +156 % in 64); with Mitsuba's sample weight for the "
+        "particles the heavy tail is gone (per-run SD 0.7 -> 0.3 %)"),
+    ("bsdf:roughdielectric", "qmc_lighttrace:smooth"): (
+        "heavy-tailed: at 8 runs it detects 1.5-2.6 % at 5 of 7 seeds, 10.5 % and 12.5 % at the others; -0.9 +- "
+        "0.13 % against ptracer with Mitsuba's sample weight for the particles (z -7; -0.44 % with the tail)"),
+}
 
 
 def row_cells():
@@ -61,6 +93,10 @@ def _cells():
         for i in INTEGRATORS:
             rendered = expected.expected(matrix.rows()[r], i) == outcomes.PASS
             marks = [pytest.mark.extended] if rendered and r not in ALWAYS and every_run.get(r) != i else []
+            if (r, i) in KNOWN_DEFECTS:
+                marks.append(pytest.mark.xfail(strict=True, reason=KNOWN_DEFECTS[(r, i)]))
+            if (r, i) in INTERMITTENT_DEFECTS:
+                marks.append(pytest.mark.xfail(strict=False, reason=INTERMITTENT_DEFECTS[(r, i)]))
             yield pytest.param(r, i, marks=marks, id="%s-%s" % (r, i))
 
 
@@ -104,24 +140,36 @@ def test_expectations_name_rows():
             for key in table:
                 assert key in matrix.rows(), (spec.name, key)
         for key, (limit, why) in spec.power.items():
-            assert POWER_LIMIT < limit <= MAX_POWER_LIMIT and why, (spec.name, key)
+            assert limit > 0 and why, (spec.name, key)
         for key, (limit, why) in spec.slowness.items():
             assert matrix.SLOWNESS_LIMIT < limit <= MAX_SLOWNESS_LIMIT and why, (spec.name, key)
+
+
+def test_no_cell_declares_a_power_limit_above_the_limit():
+    assert not matrix.loose_power_limits(), matrix.loose_power_limits()
+
+
+def test_a_loose_power_limit_is_found():
+    """Test of the test: a declared limit above POWER_LIMIT is named, one at it is not."""
+    loose = _spec("loose", {"type": "coverage_scaled_path"}, power={"bsdf:diffuse": (2 * POWER_LIMIT, "a test"),
+                                                                   "bsdf:plastic": (POWER_LIMIT, "a test")})
+    assert matrix.loose_power_limits([loose]) == [("loose", "bsdf:diffuse", 2 * POWER_LIMIT)]
+
+
+def test_known_defects_are_rendered_cells():
+    assert not set(KNOWN_DEFECTS) & set(INTERMITTENT_DEFECTS)
+    for (r, i) in list(KNOWN_DEFECTS) + list(INTERMITTENT_DEFECTS):
+        assert r in ROWS and i in INTEGRATORS, (r, i)
+        assert expected.expected(matrix.rows()[r], i) == outcomes.PASS, (r, i)
 
 
 @pytest.mark.parametrize("row,integrator", list(_cells()))
 def test_cell(row, integrator):
     cell = matrix.run(row, integrator, seed=budget.seed(SEED))
-    assert cell.ok, repr(cell)
+    assert cell.ok, repr(cell)       # a PASS detects matrix.POWER_LIMIT (matrix.run's rule)
     if cell.outcome == outcomes.PASS:
         budget.record("coverage", cell.false_failure, row=row, integrator=integrator,
                       power=None if math.isinf(cell.power) else float(cell.power))
-        if math.isinf(cell.power):       # a black reference: the absolute tolerance
-            assert cell.tolerance <= 1e-4, repr(cell)
-        else:
-            limit = expected.spec_of(integrator).power.get(row, (POWER_LIMIT, ""))[0]
-            assert cell.power <= limit, "the cell detects only %.3g %% (limit %.3g %%): %r" % (
-                100 * cell.power, 100 * limit, cell)
 
 
 # ------------------------------------------------------------------ the matrix's own tests
@@ -186,6 +234,27 @@ def test_a_slow_cell_fails(monkeypatch):
     monkeypatch.setattr(matrix, "SLOWNESS_LIMIT", 1e-3)
     cell = matrix.run("bsdf:diffuse", _spec("path", {"type": "coverage_scaled_path"}), seed=budget.seed(SEED))
     assert cell.outcome == outcomes.FAIL and any("the reference's" in f for f in cell.failures), repr(cell)
+
+
+def test_a_blind_cell_fails(monkeypatch):
+    """A PASS needs the power: path against itself fails where the limit is below what its
+    budget detects; a black reference is judged by the absolute tolerance instead, and fails
+    where that limit is below the cell's tolerance."""
+    path = _spec("path", {"type": "coverage_scaled_path"})
+    monkeypatch.setattr(matrix, "POWER_LIMIT", 1e-4)
+    cell = matrix.run("bsdf:diffuse", path, seed=budget.seed(SEED))
+    assert cell.outcome == outcomes.FAIL and any("detects only" in f for f in cell.failures), repr(cell)
+    assert matrix.run("case:no_emitters", path, seed=budget.seed(SEED)).outcome == outcomes.PASS
+    monkeypatch.setattr(matrix, "BLACK_TOLERANCE", 1e-9)
+    cell = matrix.run("case:no_emitters", path, seed=budget.seed(SEED))
+    assert cell.outcome == outcomes.FAIL and any("black reference" in f for f in cell.failures), repr(cell)
+
+
+def test_a_stricter_power_limit_holds_for_its_row_only(monkeypatch):
+    spec = _spec("path", {"type": "coverage_scaled_path"}, power={"bsdf:diffuse": (1e-4, "a test")})
+    cell = matrix.run("bsdf:diffuse", spec, seed=budget.seed(SEED))
+    assert cell.outcome == outcomes.FAIL and any("limit 0.01 %" in f for f in cell.failures), repr(cell)
+    assert matrix.run("bsdf:roughplastic", spec, seed=budget.seed(SEED)).outcome == outcomes.PASS
 
 
 def test_a_slowness_exception_holds_for_its_row_only(monkeypatch):

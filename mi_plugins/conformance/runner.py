@@ -14,6 +14,11 @@ from .scene_library import SCENES
 
 #: references already rendered in this process: {key: (images, seconds)}
 _REFERENCES = {}
+#: a PASS must detect a relative error of the image mean of this size (its ``power``), and
+#: where the reference is black (no relative error exists) accept a mean of at most
+#: BLACK_LIMIT; quick runs (half the runs) are a first look: the rule is not applied to them
+POWER_LIMIT = 0.05
+BLACK_LIMIT = 1e-4
 
 
 @dataclass
@@ -174,7 +179,14 @@ def run(scene, integrator, runs=None, spp=None, seed=0, quick=False, resolution=
     for key in ("mean", "ref_mean", "se", "ref_se", "z", "limit", "tolerance", "power", "block_failures",
                 "block_tests", "rmse", "false_failure", "failures"):
         setattr(res, key, out[key])
-    res.outcome = outcomes.PASS if out["passed"] else outcomes.FAIL
+    black = math.isinf(res.power)        # a black reference: the absolute tolerance instead
+    if not quick and black and not res.tolerance <= BLACK_LIMIT:
+        res.failures.append("a black reference, and the comparison accepts a mean up to %.3g (limit %g)"
+                            % (res.tolerance, BLACK_LIMIT))
+    if not quick and not black and not res.power <= POWER_LIMIT:
+        res.failures.append("the comparison detects only a relative error of %.3g %% (limit %.3g %%)"
+                            % (100 * res.power, 100 * POWER_LIMIT))
+    res.outcome = outcomes.PASS if out["passed"] and not res.failures else outcomes.FAIL
     if isinstance(setting.expected, outcomes.Refused):
         res.failures.append("rendered, but a refusal matching /%s/ was expected" % setting.expected.pattern)
     return res

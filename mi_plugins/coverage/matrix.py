@@ -13,8 +13,10 @@ compares them with the row's reference integrator (``path``, ``volpath`` for med
 - **N/A**: the row cannot be built here (its reason), or the integrator does not
   apply by design (its documented reason);
 - **FAIL**: anything else: a wrong image, an unclear error, a crash, a refusal where a
-  render was expected (or the reverse), or a cell over :data:`SLOWNESS_LIMIT` times the
-  reference's seconds per run.
+  render was expected (or the reverse), a cell over :data:`SLOWNESS_LIMIT` times the
+  reference's seconds per run, or a comparison blind to a relative error of the image
+  mean of :data:`POWER_LIMIT` (a cell that cannot see it renders longer or is a known
+  defect, never a PASS).
 
 The expected outcome of every cell is in :mod:`.expected`; a cell whose outcome is not
 the expected one fails the suite.
@@ -39,6 +41,13 @@ SLOWNESS_LIMIT = 20.0
 #: ... where the reference's seconds per run count as at least this much: below it a
 #: render's time is Dr.Jit's fixed cost of tracing and launching kernels, not its work
 REFERENCE_FLOOR = 0.05
+#: a PASS must detect a relative error of the image mean of this size (its power: the
+#: comparison's tolerance over the reference's mean); a black reference (no relative error
+#: exists) an absolute error of BLACK_TOLERANCE. A Spec's ``power`` may set a stricter
+#: limit for a cell, never a looser one. Quick runs (half the runs) are a first look:
+#: the rule is not applied to them
+POWER_LIMIT = 0.1
+BLACK_TOLERANCE = 1e-4
 #: film size of the cells (pixels per side)
 RESOLUTION = 8
 #: runs of the integrator and of the reference (quick: half)
@@ -156,6 +165,19 @@ def cell_integrator(row, name, quick=False):
     return params, max(spp, 1), max(runs // 2, 4) if quick else runs
 
 
+def power_limit(spec, row_key):
+    """The relative error of the image mean that the cell (``spec``'s integrator, row
+    ``row_key``) must detect: its ``Spec.power`` entry, else :data:`POWER_LIMIT`."""
+    return spec.power.get(row_key, (POWER_LIMIT, ""))[0]
+
+
+def loose_power_limits(specs=None):
+    """[(integrator, row, limit)] of every ``Spec.power`` entry above :data:`POWER_LIMIT`
+    (``specs``: the package's integrators by default); none is allowed."""
+    specs = list(expectations.INTEGRATORS.values()) if specs is None else specs
+    return [(s.name, row, limit) for s in specs for row, (limit, _) in s.power.items() if not limit <= POWER_LIMIT]
+
+
 def run(row_key, integrator, seed=0, resolution=RESOLUTION, quick=False, runs=None):
     """Run one cell; returns a :class:`Cell`."""
     row = rows()[row_key]
@@ -188,7 +210,15 @@ def run(row_key, integrator, seed=0, resolution=RESOLUTION, quick=False, runs=No
     cell.failures += out["failures"]
     if isinstance(expect, outcomes.Refused):
         cell.failures.append("rendered, but a refusal matching /%s/ was expected" % expect.pattern)
-    limit = expectations.spec_of(integrator).slowness.get(row_key, (SLOWNESS_LIMIT, ""))[0]
+    spec = expectations.spec_of(integrator)
+    black = math.isinf(cell.power)       # a black reference: the absolute tolerance instead
+    if not quick and black and not cell.tolerance <= BLACK_TOLERANCE:
+        cell.failures.append("a black reference, and the cell accepts a mean up to %.3g (limit %g)"
+                             % (cell.tolerance, BLACK_TOLERANCE))
+    if not quick and not black and not cell.power <= power_limit(spec, row_key):
+        cell.failures.append("the cell detects only a relative error of %.3g %% (limit %.3g %%)"
+                             % (100 * cell.power, 100 * power_limit(spec, row_key)))
+    limit = spec.slowness.get(row_key, (SLOWNESS_LIMIT, ""))[0]
     if cell.slowness > limit:
         cell.failures.append("%.2f s per run: %.0fx the reference's %.3f s (counted as at least %g s; limit %gx)"
                              % (cell.seconds, cell.slowness, cell.ref_seconds, REFERENCE_FLOOR, limit))
