@@ -34,10 +34,12 @@ def _parser():
                         "cases' exact derivatives, forward and reverse mode (--report writes gradients.json/.md)")
 
     d = sub.add_parser("demo", help="render the Cornell box with path and the package's integrators at equal time "
-                                    "(PNGs and a contact sheet), then a short analytic check")
+                                    "(PNGs and a contact sheet), a walkthrough from one solve against path at equal "
+                                    "time (an animated GIF and a strip), then a short analytic check")
     d.add_argument("--out", default="reports/demo", metavar="DIR", help="where the PNGs go (default reports/demo)")
-    d.add_argument("--seconds", type=float, default=8.0, help="seconds per integrator (default 8)")
-    d.add_argument("--resolution", type=int, default=64, help="pixels per side (default 64)")
+    d.add_argument("--seconds", type=float, default=5.0, help="seconds per integrator on one view (default 5)")
+    d.add_argument("--resolution", type=int, default=128, help="pixels per side (default 128)")
+    d.add_argument("--frames", type=int, default=30, help="frames of the walkthrough (default 30; 0: none)")
     d.add_argument("--no-check", action="store_true", help="skip the analytic check")
 
     r = sub.add_parser("render", help="render a Mitsuba XML scene in passes to an EXR, PNG or JPEG file")
@@ -282,7 +284,7 @@ def main(argv=None):
     try:
         if args.command == "demo":
             from . import demo
-            return demo.run(args.out, args.seconds, args.resolution, check=not args.no_check)
+            return demo.run(args.out, args.seconds, args.resolution, check=not args.no_check, frames=args.frames)
         if args.command == "view":
             return _view(args)
         return _verify(args) if args.command == "verify" else _render(args)

@@ -1,14 +1,18 @@
-"""``mi-plugins demo``: what the package renders, in pictures, in about a minute.
+"""``mi-plugins demo``: what the package renders, in pictures, in under two minutes.
 
-Renders Mitsuba's Cornell box with Mitsuba's ``path`` and the package's
-``stochastic_ray``, ``ray_bundle`` and ``qmc_lighttrace`` at equal time (each repeats
-independent renders until its share of seconds is spent and averages them), and the
-smooth display of the view-independent solutions of ``ray_bundle`` and
-``qmc_lighttrace`` (one solve, then camera samples until the same seconds are spent),
-writes one PNG per image and a contact sheet with each image's error against a longer
-``path`` reference (on the whole image and away from the visible lamp) and its time,
-then runs a short analytic check (a few cases with exactly known radiance, a few
-integrators) and prints PASS/FAIL lines.
+1. **One view at equal time**: Mitsuba's Cornell box with Mitsuba's ``path`` and the
+   package's ``stochastic_ray``, ``ray_bundle`` and ``qmc_lighttrace`` (each repeats
+   independent renders until its seconds are spent and averages them), and the smooth
+   display of the view-independent solutions of ``ray_bundle`` and ``qmc_lighttrace``
+   (one solve for ``timesplit.SOLVE_SHARE['view']`` of the seconds, then the camera
+   samples that fit in the rest). Every row on a fresh scene object, its kernels compiled
+   on another first. One PNG per image and a contact sheet with each image's error
+   against a long ``path`` reference (cached on disk), whole image and away from the lamp.
+2. **A walkthrough** (``mi_plugins.walkthrough``): a camera path through the box rendered
+   by ``path`` and from one solve of each solution integrator in the same total time,
+   each frame's error printed, an animated GIF side by side and a contact strip, and the
+   time each solution needs to reach ``path``'s error on every frame.
+3. A short analytic check (a few cases with exactly known radiance) and its PASS/FAIL lines.
 """
 import os
 import time
@@ -16,21 +20,24 @@ import time
 import mitsuba as mi
 import numpy as np
 
-#: the integrators of the demo and their settings (the package's defaults where they are quick)
+from mi_plugins import animation, references, timesplit, walkthrough
+from mi_plugins.animation import to_srgb8
+from mi_plugins.references import away_from_light  # noqa: F401  (the demo's lamp mask, used by the benchmarks)
+
+#: the integrators of the demo and their settings (the package's defaults; the smooth
+#: displays' solve sized by the seconds: mi_plugins.timesplit)
 INTEGRATORS = {
     "path": {"type": "path"},
     "stochastic_ray": {"type": "stochastic_ray"},
     "ray_bundle": {"type": "ray_bundle"},
     "qmc_lighttrace": {"type": "qmc_lighttrace"},
-    # one solve each (a longer one than the defaults: its noise stays in every camera sample),
-    # then the solution shown with as many camera samples as the seconds allow
-    "ray_bundle smooth": {"type": "ray_bundle", "display": "smooth", "iterations": 64},
-    "qmc_lighttrace smooth": {"type": "qmc_lighttrace", "display": "smooth", "samples": 1600000},
+    "ray_bundle smooth": {"type": "ray_bundle", "display": "smooth"},
+    "qmc_lighttrace smooth": {"type": "qmc_lighttrace", "display": "smooth"},
 }
 #: spp of one render of each (a render is repeated until the integrator's seconds are spent)
 SPP = {"path": 16, "stochastic_ray": 1, "ray_bundle": 1, "qmc_lighttrace": 8}
-#: the first spp of a solution display (doubled while the seconds allow)
-DISPLAY_SPP = 4
+#: the reference's samples per pixel (path, cached on disk)
+REFERENCE_SPP = 4096
 #: the analytic check: (case, integrator dict, spp, runs)
 CHECKS = [("furnace_box", {"type": "path"}, 8, 16),
           ("furnace_box", {"type": "stochastic_ray"}, 2, 16),
@@ -54,35 +61,6 @@ def equal_time(scene, integrator, spp, seconds, seed=0):
         total = image if total is None else total + image
         count += 1
     return total / count, count, time.perf_counter() - t0
-
-
-def equal_time_display(scene, integrator, seconds, seed=0):
-    """One solve, then the solution displayed with twice the camera samples per render
-    while the next render fits into ``seconds`` (same seed: the solution is kept):
-    (image of the last render, its spp, seconds, solves)."""
-    integ = mi.load_dict(integrator)
-    spp, t0 = DISPLAY_SPP, time.perf_counter()
-    while True:
-        start = time.perf_counter()
-        image = np.array(mi.render(scene, integrator=integ, spp=spp, seed=seed), dtype=np.float64)
-        now = time.perf_counter()
-        if now - t0 + 2.2 * (now - start) > seconds:
-            return image, spp, now - t0, integ.solve_count
-        spp *= 2
-
-
-def away_from_light(reference):
-    """Pixels none of whose 3 x 3 neighbours sees the lamp (reference above 1 in a channel:
-    the lamp emits 18.4, the brightest lit wall pixels stay below 0.5)."""
-    lit = np.pad(reference[..., :3].max(axis=-1) > 1.0, 1)
-    h, w = reference.shape[:2]
-    return ~np.any([lit[i:i + h, j:j + w] for i in range(3) for j in range(3)], axis=0)
-
-
-def to_srgb8(image):
-    rgb = np.clip(image[..., :3], 0, None)
-    srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
-    return (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def write_png(path, image):
@@ -109,34 +87,87 @@ def contact_sheet(path, entries):
     plt.close(fig)
 
 
-def run(out_dir="reports/demo", seconds=8.0, resolution=64, check=True, out=print):
-    """Render, write the PNGs and the contact sheet into ``out_dir``, run the checks;
-    returns 0 when every check passes."""
-    os.makedirs(out_dir, exist_ok=True)
-    scene = mi.load_dict(cornell(resolution))
-    out("Cornell box, %d x %d px, %.0f s per integrator (equal time)" % (resolution, resolution, seconds))
-    reference, refs, ref_seconds = equal_time(scene, INTEGRATORS["path"], 256, 3 * seconds, seed=99)
-    write_png(os.path.join(out_dir, "reference_path.png"), reference)
+def stills(out_dir, seconds, resolution, rates, out, cache=None):
+    """Part 1: every integrator on the box's own view at equal ``seconds``."""
+    d = cornell(resolution)
+    reference = references.path_references(d, REFERENCE_SPP, tag="demo", cache=cache, out=out)[0]
+    write_png(os.path.join(out_dir, "reference_path.png"), reference.image)
+    out("Cornell box, %d x %d px, %.0f s per integrator (equal time; RMSE relative to the image mean, the "
+        "reference's noise taken out)" % (resolution, resolution, seconds))
     entries = []
-    away, mean = away_from_light(reference), max(float(np.mean(reference[..., :3])), 1e-12)
     for name, integrator in INTEGRATORS.items():
         if "display" in integrator:
-            image, spp, spent, solves = equal_time_display(scene, integrator, seconds)
-            how = "%d solve%s, %d spp" % (solves, "" if solves == 1 else "s", spp)
+            image, info = timesplit.solve_and_display(mi.load_dict(d), rates[integrator["type"]], seconds)
+            spent = info["seconds"]
+            how = "%d solve (%s %d, %.1f s), %d spp" % (info["solves"], rates[integrator["type"]].name, info["size"],
+                                                      info["solve_seconds"], info["spp"])
         else:
-            image, renders, spent = equal_time(scene, integrator, SPP[name], seconds)
+            mi.render(mi.load_dict(d), integrator=mi.load_dict(integrator), spp=1, seed=999)   # compile
+            image, renders, spent = equal_time(mi.load_dict(d), integrator, SPP[name], seconds)
             how = "%d renders" % renders
-        err = (image[..., :3] - reference[..., :3]) ** 2
-        rel, rel_away = np.sqrt(err.mean()) / mean, np.sqrt(err[away].mean()) / mean
+        full, away = reference.errors(image)
         write_png(os.path.join(out_dir, name.replace(" ", "_") + ".png"), image)
-        entries.append(("%s\nRMSE %.1f %% (away from the lamp %.1f %%), %.1f s" % (name, 100 * rel, 100 * rel_away,
-                                                                                spent), image))
-        out("  %-22s %-17s %5.1f s  RMSE %4.1f %%, away from the lamp %4.1f %% (of the image mean)"
-            % (name, how, spent, 100 * rel, 100 * rel_away))
-    entries.append(("reference: path\n%d x 256 spp, %.0f s" % (refs, ref_seconds), reference))
+        entries.append(("%s\nRMSE %.1f %% (away from the lamp %.2f %%), %.1f s" % (name, 100 * full, 100 * away,
+                                                                                 spent), image))
+        out("  %-22s %-41s %5.1f s  RMSE %4.1f %%, away from the lamp %5.2f %%" % (name, how, spent, 100 * full,
+                                                                                   100 * away))
+    entries.append(("reference: path\n%d spp" % REFERENCE_SPP, reference.image))
     sheet = os.path.join(out_dir, "contact_sheet.png")
     contact_sheet(sheet, entries)
     out("wrote %s and one PNG per integrator in %s" % (sheet, out_dir))
+
+
+def walk_pictures(out_dir, walk, out):
+    """The walkthrough's animated GIF (path and each solution side by side) and its strip."""
+    why = animation.available()
+    if why is not None:
+        out("walkthrough animation and strip skipped: %s" % why)
+        return
+    columns = [(run.images, [[name, "1 solve, %d spp a frame" % run.info["spp"] if run.info else run.how,
+                              "%.1f s: RMSE %.1f %%" % (run.seconds, 100 * e)] for e in run.errors[:, 0]])
+               for name, run in walk.runs.items()]
+    gif = os.path.join(out_dir, "walkthrough.gif")
+    animation.write_animation(gif, columns)
+    picks = sorted(set(np.linspace(0, len(walk.transforms) - 1, 5).round().astype(int).tolist()))
+    rows = [("reference: path %d spp" % (walkthrough.REFERENCE_FACTOR * walkthrough.PATH_SPP),
+             [r.image for r in walk.refs], [["frame %d" % k] for k in range(len(walk.refs))])]
+    rows += [("%s: %s, %.1f s in all" % (name, run.how, run.seconds), run.images,
+              [["%.1f %%" % (100 * e)] for e in run.errors[:, 0]]) for name, run in walk.runs.items()]
+    strip = os.path.join(out_dir, "walkthrough_strip.png")
+    animation.write_strip(strip, rows, picks)
+    out("wrote %s (%d frames) and %s" % (gif, len(walk.transforms), strip))
+
+
+def check_settings(seconds, resolution, frames):
+    """Refuse settings the demo cannot use, naming the value and the valid range."""
+    if not float(seconds) > 0:
+        raise ValueError("mi-plugins demo: seconds=%r: valid: more than 0" % (seconds,))
+    if int(resolution) < 8:
+        raise ValueError("mi-plugins demo: resolution=%r: valid: 8 or more pixels per side" % (resolution,))
+    if int(frames) != 0 and int(frames) < 2:
+        raise ValueError("mi-plugins demo: frames=%r: valid: 0 (no walkthrough) or 2 or more" % (frames,))
+
+
+def run(out_dir="reports/demo", seconds=5.0, resolution=128, check=True, out=print, frames=walkthrough.FRAMES,
+        cache=None, rates=None):
+    """Part 1, the walkthrough (``frames`` > 0) and the checks; writes into ``out_dir``;
+    returns 0 when every check passes. ``rates``: {integrator: timesplit.SolveRate} (None:
+    measured here, which also compiles the solutions' kernels); ``cache``: the references'
+    folder (None: references.CACHE)."""
+    check_settings(seconds, resolution, frames)
+    os.makedirs(out_dir, exist_ok=True)
+    t0 = time.perf_counter()
+    if rates is None:
+        rates = {name: timesplit.SolveRate.measure(lambda: mi.load_dict(cornell(resolution)),
+                                                   {"type": name, "display": "smooth"}, seed=9)
+                 for name in ("ray_bundle", "qmc_lighttrace")}
+    stills(out_dir, seconds, resolution, rates, out, cache)
+    if frames:
+        out("")
+        walk = walkthrough.compare(resolution, {name: rates[name] for name in ("qmc_lighttrace", "ray_bundle")
+                                                if name in rates}, frames=frames, cache=cache, out=out)
+        walk_pictures(out_dir, walk, out)
+    out("rendering: %.0f s in all" % (time.perf_counter() - t0))
     if not check:
         return 0
     from mi_plugins import analytic
