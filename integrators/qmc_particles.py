@@ -151,11 +151,14 @@ def adjoint_weight(bsdf, ctx, si, bs, weight, active):
     f(wo, wi) |cos_sh(wi)| |cos_geo(wo)| / (|cos_geo(wi)| pdf) with the BSDF evaluated
     with wo as its wi (``ctx``: Radiance mode); delta and null lobes, which cannot be
     evaluated, keep their Importance-mode weight with the adjoint shading-normal
-    correction (Veach 1997, p. 158)."""
+    correction (Veach 1997, p. 158). A sample of weight 0 is none (its factor 0):
+    ``roughdielectric`` keeps its lobe's pdf for directions that crossed to the other
+    lobe's side, where eval() is the other lobe's (docs/findings.md); ``bs.pdf`` is the
+    density of the samples of non-zero weight."""
     delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
     at = mi.SurfaceInteraction3f(si)
     at.wi = bs.wo
-    smooth = active & ~delta & (bs.pdf > 0)
+    smooth = active & ~delta & (bs.pdf > 0) & dr.any(mi.Color3f(weight) != 0)
     f = mi.Color3f(bsdf.eval(ctx, at, si.wi, smooth))
     cos_in = dr.abs(geometric_cosine(si, si.wi))
     cos_out = dr.abs(geometric_cosine(si, bs.wo))

@@ -255,10 +255,14 @@ class StochasticRayIntegrator(CoreIntegrator):
         bs, w = bsdf.sample(mi.BSDFContext(mi.TransportMode.Importance), si, rng.next_float32(),
                             mi.Point2f(rng.next_float32(), rng.next_float32()), hit)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        smooth_w = self._path_weight(si, bsdf, radiance, bs.wo, to_light, cos_light, hit & ~delta)
+        # a sample Mitsuba weighs 0 is none: roughdielectric keeps its lobe's bs.pdf for directions that
+        # crossed to the other lobe's side, where eval() is the other lobe's (docs/findings.md); bs.pdf
+        # is the density of the samples of non-zero weight
+        drawn = (bs.pdf > 0) & dr.any(mi.Color3f(w) != 0)
+        smooth_w = self._path_weight(si, bsdf, radiance, bs.wo, to_light, cos_light, hit & ~delta & drawn)
         w = dr.select(delta, mi.Color3f(w) * shading_normal_correction(si, bs.wo),
-                      smooth_w / dr.select(bs.pdf > 0, bs.pdf, 1.0))
-        can_continue = hit & (depth_hit + 1 < max_depth) & (bs.pdf > 0)
+                      smooth_w / dr.select(drawn, bs.pdf, 1.0))
+        can_continue = hit & (depth_hit + 1 < max_depth) & drawn
         cont = dr.select(can_continue, power * w, 0.0)
         cont_s = _magnitude(cont)
         p_restart = phi_e / (phi_e + cont_s)

@@ -53,24 +53,8 @@ KNOWN_DEFECTS = {
 #: cells whose defect shows at some seeds only: heavy-tailed runs (one run far above the
 #: others) leave them blind to POWER_LIMIT at some seeds at every budget a test can afford,
 #: and their bias is below what they can see; expected failures that may pass (XPASS, never
-#: a PASS): {(row, integrator): the measured defect}. The rough glass: Mitsuba's
-#: roughdielectric returns a BSDFSample.pdf that disagrees with its sampling for 0.1-4 % of
-#: the directions drawn from inside the glass beyond the critical angle (there eval / pdf
-#: averages 8-45 % above the albedo, its sample weight is right), and the package's light
-#: paths weigh a bounce by eval / pdf
-INTERMITTENT_DEFECTS = {
-    ("bsdf:roughdielectric", "stochastic_ray"): (
-        "+1.2 +- 0.2 % too bright (five runs of 64-256 x 256-1024 spp against path, z +6.7 together; +1.1 % "
-        "against ptracer) and heavy-tailed: at 16 runs x 256 spp it detects 3.0-4.4 % at 4 of 6 seeds, 14 % and "
-        "41 % at the others; at 32 x 512 1.9-10.5 %"),
-    ("bsdf:roughdielectric", "qmc_lighttrace"): (
-        "-1.3 +- 0.15 % against ptracer (z -9, 64 runs; path itself -0.4 %), z -6.3 to -6.8 against path at its "
-        "8 runs (t bound 7.3-8), and heavy-tailed (a run at +156 % in 64); with Mitsuba's sample weight for the "
-        "particles the heavy tail is gone (per-run SD 0.7 -> 0.3 %)"),
-    ("bsdf:roughdielectric", "qmc_lighttrace:smooth"): (
-        "heavy-tailed: at 8 runs it detects 1.5-2.6 % at 5 of 7 seeds, 10.5 % and 12.5 % at the others; -0.9 +- "
-        "0.13 % against ptracer with Mitsuba's sample weight for the particles (z -7; -0.44 % with the tail)"),
-}
+#: a PASS): {(row, integrator): the measured defect}
+INTERMITTENT_DEFECTS = {}
 
 
 def row_cells():

@@ -91,3 +91,25 @@ def test_tracing_abort_reproducer_runs_and_still_reproduces():
     out = run("plugin_made_while_tracing_aborts.py")
     assert "uv scene built while tracing: exit code" in out and "redefinition" in out, out + UPDATE
     assert "uv scene built before tracing: renders" in out, out
+
+
+def test_roughdielectric_reproducer_runs_and_still_reproduces():
+    out = run("roughdielectric_sample_pdf.py")
+    blocks = {}
+    for line in out.splitlines():
+        if line.startswith("cos_i "):
+            key = line.split()[1]
+            blocks[key] = [line]
+        elif line.startswith("   ") and blocks:
+            blocks[key].append(line)
+    assert set(blocks) == {"+0.90", "+0.50", "-0.90", "-0.70", "-0.50", "-0.40"}, out
+    for key in ("-0.70", "-0.50", "-0.40"):      # inside the glass, beyond the critical angle
+        first, chi2, estimates = blocks[key]
+        assert "side: all of weight 0" in first and ", all on the other side" in first, out + UPDATE
+        assert "weight != 0 accepted" in chi2 and "all samples rejected" in chi2, out + UPDATE
+        z = float(estimates.split("E[eval / bs.pdf]")[1].split("z ")[1].split(")")[0])
+        assert z > 4, out + UPDATE
+    first, chi2, estimates = blocks["+0.90"]    # the control: nothing crosses the surface
+    assert "(0) lie on the other lobe's side" in first and "all samples accepted" in chi2, out
+    weight_z = float(estimates.split("E[weight]")[1].split("z ")[1].split(")")[0])
+    assert abs(weight_z) < 4, out
