@@ -21,7 +21,7 @@ mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
 import mi_plugins  # noqa: E402
-from mi_plugins import demo, references, timesplit  # noqa: E402
+from mi_plugins.app import demo, cached_references, timesplit  # noqa: E402
 
 SIZES = {"qmc_lighttrace": (400000, 1600000, 6400000), "ray_bundle": (16, 32, 64)}
 SPPS = (4, 16, 64, 256)
@@ -84,7 +84,7 @@ def main():
     ap.add_argument("--parts", default="table,shares")
     args = ap.parse_args()
     d = demo.cornell(args.resolution)
-    ref = references.path_references(d, demo.REFERENCE_SPP, tag="demo", out=print)[0]
+    ref = cached_references.path_references(d, demo.REFERENCE_SPP, tag="demo", out=print)[0]
 
     def say(text):
         print(text, flush=True)

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 import mi_plugins  # noqa: E402,F401
 from mi_plugins import distributed  # noqa: E402
-from mi_plugins.scene_xml import write_scene  # noqa: E402
+from mi_plugins.base.scene_xml import write_scene  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)

@@ -13,7 +13,7 @@ import tempfile
 
 import numpy as np
 
-from mi_plugins import geometry as geo
+from mi_plugins.verify import geometry as geo
 
 #: part of every cache key: raise it when a builder changes its output
 VERSION = 1
@@ -155,7 +155,7 @@ def teapot(centre, size):
 
 def scanned(k, radius, centre, seed=0, stretch=(1.0, 1.0, 1.0)):
     """A 'scanned' object: a geodesic sphere of 20 k^2 triangles (icosahedron faces split
-    k x k, crack-free: `mi_plugins.geometry.triangle_lattice`) displaced by a seeded sum
+    k x k, crack-free: `mi_plugins.verify.geometry.triangle_lattice`) displaced by a seeded sum
     of waves, scaled by ``stretch``, resting on the plane z = centre[2]."""
     rng = np.random.default_rng(seed)
     ico = geo.icosphere(0, inward=False)

@@ -108,7 +108,7 @@ class Fresh:
         """The package built a new patch table for this scene (not one of an earlier scene)."""
         if method not in PACKAGE:
             return
-        from mi_plugins import meshtable
+        from mi_plugins.patches import meshtable
         last = getattr(meshtable, "_LAST", None)
         if last is None:             # (a module without this cache: nothing to check)
             return
@@ -140,7 +140,7 @@ def timed(fresh, method, spp, seed, pixels):
 
 def setup_seconds(d, method):
     """Seconds of the patch table and of the display's field on a freshly loaded scene."""
-    from mi_plugins import patchfield
+    from mi_plugins.solution import patchfield
     scene, integ = mi.load_dict(d), mi.load_dict(PACKAGE[method])
     t0 = time.perf_counter()
     table = integ.patch_table(scene)

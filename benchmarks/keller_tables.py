@@ -21,7 +21,7 @@ import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
-from mi_plugins import analytic  # noqa: E402
+from mi_plugins.verify import analytic  # noqa: E402
 
 REPORT_TABLE2 = {"lcg": (0.0647699, 0.0138841, 0.00416856), "halton": (0.0459244, 0.015322, 0.00347108),
                  "faure": (0.0375936, 0.0101492, 0.00388516), "sobol": (0.0458288, 0.0154578, 0.0139228)}

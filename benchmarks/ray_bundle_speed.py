@@ -2,7 +2,7 @@
 
 Scenes (all built by the package, nothing to download):
 
-- the coverage matrix's 8-pixel cells (``mi_plugins.coverage``) with the matrix's
+- the coverage matrix's 8-pixel cells (``mi_plugins.verify.coverage``) with the matrix's
   ray_bundle settings and its reference budget for path (512 spp);
 - the tests' 16-pixel analytic scenes (the furnace box, the constant-radiance
   light-source box) with the tests' settings;
@@ -27,10 +27,10 @@ mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
 import mi_plugins  # noqa: E402,F401
-from mi_plugins import analytic  # noqa: E402
-from mi_plugins.coverage import rows as coverage_rows  # noqa: E402
+from mi_plugins.verify import analytic  # noqa: E402
+from mi_plugins.verify.coverage import rows as coverage_rows  # noqa: E402
 
-#: the coverage matrix's ray_bundle settings (mi_plugins.coverage.expected.RAY_BUNDLE)
+#: the coverage matrix's ray_bundle settings (mi_plugins.verify.coverage.expected.RAY_BUNDLE)
 MATRIX = {"type": "ray_bundle", "chains": 16, "resolution": 16, "iterations": 12, "burn_in": 6}
 MATRIX_ROWS = ("bsdf:diffuse", "bsdf:plastic", "emitter:spot", "emitter:constant", "shape:sphere",
                "texture:bitmap")

@@ -16,7 +16,7 @@ heavier versions of it.
   standing on the floor in the free front-left corner, white.
 
 :func:`scene_dict` builds a scene dict (meshes written once as content-addressed PLY
-files by `mi_plugins.geometry.mesh_file`); :func:`reference` renders (or reads from
+files by `mi_plugins.verify.geometry.mesh_file`); :func:`reference` renders (or reads from
 benchmarks/.cache/) the long `path` reference; :func:`away_from_light` masks the pixels
 near the visible light. Import after
 ``mi.set_variant('llvm_ad_rgb')``. Run the benchmark from the repository root:
@@ -31,7 +31,7 @@ import time
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import geometry as geo
+from mi_plugins.verify import geometry as geo
 
 CACHE = os.path.join(os.path.dirname(os.path.abspath(__file__)), ".cache")
 SCALE = 1e-3         # the Cornell data's millimetres -> scene units (the benchmark's --scale sets it)
@@ -87,7 +87,7 @@ def quads_mesh(quads, facing):
 def blob(k):
     """The displaced geodesic sphere (20 k^2 triangles, outward), standing on the floor.
     Each icosahedron face (A, B, C) is split into the lattice points (k-i-j, i, j) / k
-    (`mi_plugins.geometry.triangle_lattice`): k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
+    (`mi_plugins.verify.geometry.triangle_lattice`): k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
     same two non-zero weights on both faces, hence bit-identical positions: no cracks."""
     ico = geo.icosphere(0, inward=False)                        # the icosahedron, outward
     lattice = geo.triangle_lattice(k)                           # (T, 3 vertices, 2) lattice coordinates (i, j)
@@ -185,5 +185,5 @@ def reference(name, resolution, spp, seed=1_000_000, render=True):
 def away_from_light(ref):
     """Pixels none of whose 3 x 3 neighbours sees the light (the demo's mask: reference above
     1 in a colour channel; the light emits 18.4, the brightest lit surface pixels stay below 0.5)."""
-    from mi_plugins.demo import away_from_light as mask
+    from mi_plugins.app.demo import away_from_light as mask
     return mask(ref)

@@ -31,7 +31,7 @@ import mitsuba as mi
 import numpy as np
 
 mi.set_variant("llvm_ad_rgb")
-from mi_plugins import analytic  # noqa: E402
+from mi_plugins.verify import analytic  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import real_scene_meshes as rsm  # noqa: E402

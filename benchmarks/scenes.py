@@ -25,10 +25,10 @@ import time
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import analytic
-from mi_plugins import geometry as geo
-from mi_plugins.analytic import constant_radiance as cr
-from mi_plugins.analytic.case import AnalyticCase
+from mi_plugins.verify import analytic
+from mi_plugins.verify import geometry as geo
+from mi_plugins.verify.analytic import constant_radiance as cr
+from mi_plugins.verify.analytic.case import AnalyticCase
 
 CACHE = os.path.join(os.path.dirname(os.path.abspath(__file__)), ".cache")
 SCENES = ("furnace", "sierpinski_diffuse_exact", "sierpinski_diffuse_simulated", "sierpinski_phong_simulated", "room")

@@ -17,9 +17,9 @@ import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
-from mi_plugins import analytic  # noqa: E402
-from mi_plugins.analytic import constant_radiance as cr  # noqa: E402
-from mi_plugins.analytic.harness import render_runs  # noqa: E402
+from mi_plugins.verify import analytic  # noqa: E402
+from mi_plugins.verify.analytic import constant_radiance as cr  # noqa: E402
+from mi_plugins.verify.analytic.harness import render_runs  # noqa: E402
 
 
 def rmse(case, integrator, spp, runs):

@@ -30,7 +30,7 @@ mi.set_variant("llvm_ad_rgb")
 import numpy as np  # noqa: E402
 
 import mi_plugins  # noqa: E402,F401
-from mi_plugins import views  # noqa: E402
+from mi_plugins.solution import views  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:

@@ -22,10 +22,10 @@ invalid edit raises and is undone.
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins.sampling import square_to_power_cosine_hemisphere
-from mi_plugins import editable
-from mi_plugins.params import Params
-from mi_plugins.textures import texture_sum_max
+from mi_plugins.light.direct import square_to_power_cosine_hemisphere
+from mi_plugins.base import editable
+from mi_plugins.base.params import Params
+from mi_plugins.base.textures import texture_sum_max
 
 
 def _mirror_direction(wi):

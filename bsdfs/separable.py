@@ -29,10 +29,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.sampling import IsotropicLobe, Salt, hashed_rng
-from mi_plugins import editable
-from mi_plugins.params import Params, parameter_error
-from mi_plugins.textures import as_given, texture_max
+from mi_plugins.light.direct import IsotropicLobe, Salt, hashed_rng
+from mi_plugins.base import editable
+from mi_plugins.base.params import Params, parameter_error
+from mi_plugins.base.textures import as_given, texture_max
 
 NORMALIZATIONS = ("exact", "simulated")
 

@@ -1,4 +1,4 @@
-"""Regenerate the XML scene files of this folder from mi_plugins.analytic.
+"""Regenerate the XML scene files of this folder from mi_plugins.verify.analytic.
 
     python3 configs/generate.py          # all cases of analytic.cases()
 
@@ -11,7 +11,7 @@ import sys
 import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
-from mi_plugins.analytic import export  # noqa: E402
+from mi_plugins.verify.analytic import export  # noqa: E402
 
 if __name__ == "__main__":
     here = os.path.dirname(os.path.abspath(__file__))

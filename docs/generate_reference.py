@@ -3,7 +3,7 @@
     python3 docs/generate_reference.py           # rewrite the generated part of docs/reference.md
     python3 docs/generate_reference.py --check   # exit 1 when docs/reference.md is stale
 
-The docstring style and the conversion are described in ``mi_plugins/reference.py``;
+The docstring style and the conversion are described in ``mi_plugins/app/reference.py``;
 tests/test_docs.py runs the check.
 """
 import os
@@ -12,7 +12,7 @@ import sys
 import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
-from mi_plugins import reference  # noqa: E402
+from mi_plugins.app import reference  # noqa: E402
 
 README = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference.md")
 

@@ -24,9 +24,10 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.emitters.surface_emitter import SurfaceEmitter
-from mi_plugins.sampling import (IsotropicLobe, square_to_power_cosine_hemisphere,
-                                 square_to_power_cosine_hemisphere_pdf)
-from mi_plugins.params import NOT_GIVEN, Params, parameter_error
+from mi_plugins.light.direct import (IsotropicLobe,
+    square_to_power_cosine_hemisphere,
+    square_to_power_cosine_hemisphere_pdf)
+from mi_plugins.base.params import NOT_GIVEN, Params, parameter_error
 
 PROFILES = ("cosine_power", "tabulated")
 

@@ -28,8 +28,8 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.emitters.surface_emitter import SurfaceEmitter
-from mi_plugins.params import Params, parameter_error
-from mi_plugins.sampling import Salt, hashed_rng, hemisphere_pdf, sample_hemisphere
+from mi_plugins.base.params import Params, parameter_error
+from mi_plugins.light.direct import Salt, hashed_rng, hemisphere_pdf, sample_hemisphere
 
 ESTIMATORS = ("uniform", "cosine", "bsdf")
 

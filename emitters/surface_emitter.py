@@ -11,13 +11,13 @@ which passes the WORLD direction toward the camera in ``si.wi``).
 Positions are sampled uniformly by area on the emitting shape.
 
 Scene parameters: subclasses expose their parameters in ``traverse`` and implement
-``_exposed()`` and ``_apply(p, keys)``; ``parameters_changed`` (:mod:`mi_plugins.editable`)
+``_exposed()`` and ``_apply(p, keys)``; ``parameters_changed`` (:mod:`mi_plugins.base.editable`)
 checks an edit exactly as at load and undoes an invalid one.
 """
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import editable
+from mi_plugins.base import editable
 
 
 class SurfaceEmitter(mi.Emitter):

@@ -3,13 +3,15 @@
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import limits, seeds, support
-from mi_plugins.integrators import burn_in
-from mi_plugins.integrators.core import MAX_ITERATIONS, CoreIntegrator, coverage
-from mi_plugins.integrators.camera import first_shown, unoccluded
-from mi_plugins.integrators.handoff import Handoff
-from mi_plugins.lights import sample_light_rays
-from mi_plugins.params import Params
+from mi_plugins.base import limits, seeds, errors, queries
+from mi_plugins.render import checks
+from mi_plugins.render import burn_in
+from mi_plugins.render.core import MAX_ITERATIONS, CoreIntegrator
+from mi_plugins.render.frame import coverage
+from mi_plugins.render.camera import first_shown, unoccluded
+from mi_plugins.render.handoff import Handoff
+from mi_plugins.light.sources import sample_light_rays
+from mi_plugins.base.params import Params
 
 #: memory per chain at most (its ray, power, depth and random state, twice while a step
 #: replaces them, and the step's splat)
@@ -77,7 +79,7 @@ class StochasticRayIntegrator(CoreIntegrator):
     1e-3 (an albedo-1 room lit by a weak emitter needs over a thousand steps; the
     furnace with albedo 0.5 about 12). After the planned steps a drift check compares
     the image mean of the first and second half of the averaged steps
-    (:mod:`mi_plugins.convergence`); while it still drifts, the steps so far become
+    (:mod:`mi_plugins.render.burn_in`); while it still drifts, the steps so far become
     burn-in and twice as many are averaged. Where ``max_iterations`` leaves too little
     room for either, the render is refused (``NotConverged``, naming the measured defect
     and the steps needed). **Sensors:** ``perspective``,
@@ -88,7 +90,7 @@ class StochasticRayIntegrator(CoreIntegrator):
     wrongly (on a ``flip_normals`` rectangle, or a mesh whose uv map does not cover the
     unit square once) in a scene with mirror, glass or null surfaces, whose light the
     camera sees through Mitsuba's ``volpath``. Light rays sample textured area lights
-    uniformly on their shape (``mi_plugins.lights``). Light splats go through the film's reconstruction
+    uniformly on their shape (``mi_plugins.light.sources``). Light splats go through the film's reconstruction
     filter, with the part of a wide filter beyond the crop window compensated
     (Mitsuba's ``ptracer`` darkens the border pixels there, by ~10 % with the default
     Gaussian filter).
@@ -125,18 +127,18 @@ class StochasticRayIntegrator(CoreIntegrator):
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
-        for cls in sorted(support.nested_classes(sensor)):
-            name = support.PLUGIN_OF_CLASS.get(cls)
-            if name is not None and name in support.SENSOR_PLUGINS and name not in self.SENSORS:
-                raise support.Unsupported(
-                    self.plugin, name, support.describe(sensor, "sensor") if name == support.plugin_name(sensor)
-                    else "the sensor '%s' inside %s" % (name, support.describe(sensor, "sensor")),
+        for cls in sorted(queries.nested_classes(sensor)):
+            name = queries.PLUGIN_OF_CLASS.get(cls)
+            if name is not None and name in queries.SENSOR_PLUGINS and name not in self.SENSORS:
+                raise errors.Unsupported(
+                    self.plugin, name, queries.describe(sensor, "sensor") if name == queries.plugin_name(sensor)
+                    else "the sensor '%s' inside %s" % (name, queries.describe(sensor, "sensor")),
                     "light paths reach the camera by connecting to it, and Mitsuba gives no connection "
                     "(sample_direction) for this sensor: its directions form a delta distribution or it has no "
                     "aperture to connect to", "render it with 'path', or with 'ray_bundle' / 'qmc_lighttrace', "
                     "which trace camera rays")
-        if any(int(bsdf.flags()) & int(mi.BSDFFlags.Delta) for _, bsdf in support.bsdfs(scene)):
-            support.refuse_textured_lights_behind_handoff(
+        if any(int(bsdf.flags()) & int(mi.BSDFFlags.Delta) for _, bsdf in queries.bsdfs(scene)):
+            checks.refuse_textured_lights_behind_handoff(
                 self.plugin, scene, "the camera through mirrors, glass and null surfaces")
 
     # ------------------------------------------------------------------ light rays
@@ -176,7 +178,7 @@ class StochasticRayIntegrator(CoreIntegrator):
         chain = [ray, power, depth]
         steps = self.steps(self.iterations, self.burn_in)
         # each averaged step's splats estimate the image once per chain and pixel
-        # (not a closure over the frame, which keeps it: a reference cycle, mi_plugins.collection)
+        # (not a closure over the frame, which keeps it: a reference cycle, mi_plugins.base.collection)
         pixels, progress = frame.pixels, self.progress
         scale = lambda: pixels / (chains * max(progress.averaged, 1))
         frame.light_block("light", scale)

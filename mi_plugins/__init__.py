@@ -9,7 +9,7 @@ Usage::
 
 After switching variants, call :func:`mi_plugins.register` again.
 
-Exception: when pytest loads the package's pytest plugin (``mi_plugins.pytest_plugin``,
+Exception: when pytest loads the package's pytest plugin (``mi_plugins.verify.pytest_plugin``,
 a ``pytest11`` entry point) before any Mitsuba variant is set, Python imports this
 package as the plugin's parent *bare*: no Mitsuba import, no registration. The plugin
 drops the bare package from ``sys.modules`` as soon as pytest registers it, so the next
@@ -40,7 +40,7 @@ def _imported_bare():
 #: True while this module is the bare parent of the pytest plugin (see the module docstring)
 _BARE = _imported_bare()
 
-from . import _llvm  # noqa: E402
+from mi_plugins.base import llvm  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -49,7 +49,7 @@ __version__ = "0.1.0"
 SUPPORTED_VARIANTS = ("llvm_ad_rgb", "llvm_rgb", "cuda_ad_rgb", "cuda_rgb")
 PRIMARY_VARIANT = "llvm_ad_rgb"
 
-_llvm.configure()  # before Dr.Jit loads libLLVM
+llvm.configure()  # before Dr.Jit loads libLLVM
 
 
 def _source_checkout_root():
@@ -97,7 +97,7 @@ def check_variant(variant=None):
             "code for the JIT RGB variants %s (primary: '%s')."
             % (variant, ", ".join(SUPPORTED_VARIANTS), PRIMARY_VARIANT))
     if variant.startswith("llvm"):
-        _llvm.check_loaded()
+        llvm.check_loaded()
     return variant
 
 
@@ -106,20 +106,21 @@ def register():
 
     Returns a dict ``{kind: [plugin names]}``. Call it again after
     ``mi.set_variant`` switches to another variant. Also makes ``mi.render`` raise the
-    package's own exceptions as they are (:mod:`mi_plugins.render_errors`).
+    package's own exceptions as they are (:mod:`mi_plugins.base.render_errors`).
     """
-    from . import registry, render_errors
+    from mi_plugins import registry
+    from mi_plugins.base import render_errors
     registered = registry.register_all(check_variant())
     render_errors.install()      # the package's errors reach mi.render's caller unwrapped
     return registered
 
 
 def solve(scene, integrator=None, seed=0):
-    """The view-independent solution (:class:`mi_plugins.solution.Solution`) of ``scene`` by
+    """The view-independent solution (:class:`mi_plugins.solution.solution.Solution`) of ``scene`` by
     ``integrator`` ('ray_bundle' or 'qmc_lighttrace': a plugin dict, a loaded integrator,
     or None for the scene's own) with ``seed``. A loaded integrator keeps it: its next
     render of the scene with that seed, from any sensor, displays it without solving."""
-    from .integrators.solving import SolutionIntegrator
+    from mi_plugins.solution.integrator import SolutionIntegrator
     if integrator is None:
         integrator = scene.integrator()
     elif isinstance(integrator, dict):

@@ -23,7 +23,7 @@ numbers of a sample are independent and the sampler is unbiased.
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.padded_sobol import PaddedSobolSampler
 from mi_plugins.samplers.sequence_sampler import reference
 
@@ -45,12 +45,12 @@ class CMJSampler(PaddedSobolSampler):
 
     def _points(self, index, key, coords):
         n = int(self.sample_count())
-        jitter = [qmc.to_unit(qmc.hash32(key, index, 0x717 + c)) for c in range(coords)]
+        jitter = [sequences.to_unit(sequences.hash32(key, index, 0x717 + c)) for c in range(coords)]
         if coords == 1:
             return [(mi.Float(index) + jitter[0]) * (1.0 / n)]
         m, rows = grid(n)
         column, row = index % m, index // m
-        sub_column = mi.permute_kensler(row, rows, qmc.hash32(key, 0xC01)) if rows > 1 else dr.zeros(mi.UInt32)
-        sub_row = mi.permute_kensler(column, m, qmc.hash32(key, 0x120)) if m > 1 else dr.zeros(mi.UInt32)
+        sub_column = mi.permute_kensler(row, rows, sequences.hash32(key, 0xC01)) if rows > 1 else dr.zeros(mi.UInt32)
+        sub_row = mi.permute_kensler(column, m, sequences.hash32(key, 0x120)) if m > 1 else dr.zeros(mi.UInt32)
         return [(mi.Float(column) + (mi.Float(sub_column) + jitter[0]) * (1.0 / rows)) * (1.0 / m),
                 (mi.Float(row) + (mi.Float(sub_row) + jitter[1]) * (1.0 / m)) * (1.0 / rows)]

@@ -1,5 +1,5 @@
 """The `faure` sampler (user reference: the class docstring)."""
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.sequence_sampler import SequenceSampler, reference
 
 
@@ -7,4 +7,4 @@ class FaureSampler(SequenceSampler):
     __doc__ = reference('faure', "Halton sequence with Faure's digit permutations",
                         "Faure's permutation followed by a random digit shift per dimension and digit position")
     sequence = "faure"
-    max_dim = qmc.max_dim(sequence)
+    max_dim = sequences.max_dim(sequence)

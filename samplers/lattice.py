@@ -18,7 +18,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.padded_sobol import PaddedSobolSampler
 from mi_plugins.samplers.sequence_sampler import reference
 
@@ -59,6 +59,6 @@ class LatticeSampler(PaddedSobolSampler):
         offsets = (mi.UInt32(0) + index, (index * generator(n)) % n)
         values = []
         for c in range(coords):
-            x = mi.Float(offsets[c]) * (1.0 / n) + qmc.to_unit(qmc.hash32(key, 0x5EED + c))
+            x = mi.Float(offsets[c]) * (1.0 / n) + sequences.to_unit(sequences.hash32(key, 0x5EED + c))
             values.append(dr.select(x >= 1.0, x - 1.0, x))
         return values

@@ -9,7 +9,7 @@ the same key. The shuffle pairs the strata of different padded dimensions at ran
 no two dimensions are correlated; the scramble makes every point uniform on [0, 1)^2.
 This is how production renderers sample (pbrt-v4's ``PaddedSobolSampler``), and what
 Mitsuba's ``multijitter`` does with correlated multi-jittered patterns instead of
-scrambled nets. The keys are hashed (:func:`mi_plugins.qmc.hash32`): neighbouring
+scrambled nets. The keys are hashed (:func:`mi_plugins.base.sequences.hash32`): neighbouring
 dimensions get unrelated permutations.
 
 Subclasses change where the index comes from (``zsobol``: one global index over the
@@ -18,7 +18,7 @@ of each padded dimension (``lattice``, ``cmj``) through :meth:`PaddedSobolSample
 """
 import mitsuba as mi
 
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.sequence_sampler import SequenceSampler, reference
 
 
@@ -35,12 +35,12 @@ class PaddedSobolSampler(SequenceSampler):
 
     def _index_and_key(self):
         """(point index, scramble key) of each lane for the current padded dimension."""
-        key = qmc.hash32(self.pixel, self.dimension, self.base_seed)
+        key = sequences.hash32(self.pixel, self.dimension, self.base_seed)
         return mi.permute_kensler(self.sample_index, int(self.sample_count()), key), key
 
     def _points(self, index, key, coords):
         """The ``coords`` coordinates of point ``index`` of the dimension's set (keyed by ``key``)."""
-        return [qmc.sample("sobol", index, c, scramble=True, seed=key) for c in range(coords)]
+        return [sequences.sample("sobol", index, c, scramble=True, seed=key) for c in range(coords)]
 
     def _draw(self, coords):
         index, key = self._index_and_key()

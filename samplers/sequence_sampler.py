@@ -18,7 +18,7 @@ seen as passes of N samples per pixel: unbiased, but the pixels do not get the p
 0 .. N-1; ``advance()`` warns.)
 
 Decorrelation between pixels: each pixel's points are scrambled with its own seed (hash
-of pixel and render seed), with the scramble :mod:`mi_plugins.qmc` defines for the
+of pixel and render seed), with the scramble :mod:`mi_plugins.base.sequences` defines for the
 sequence (Owen for Sobol, random digit permutations for Halton, Faure's permutation and
 random digit shifts for Faure). With ``scramble=False`` all pixels use the same
 unrandomised points (deterministic, correlated across pixels: for studies only).
@@ -29,8 +29,8 @@ The user reference of each sampler is its class docstring, made by :func:`refere
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import qmc
-from mi_plugins.params import Params
+from mi_plugins.base import sequences
+from mi_plugins.base.params import Params
 
 
 _SCRAMBLE_ROW = """
@@ -132,7 +132,7 @@ class SequenceSampler(mi.Sampler):
             seed &= 0xFFFFFFFF
         # the render seed and the sampler's `seed` parameter together (seed 0: as without it)
         extra = (self.sampler_seed,) if self.sampler_seed else ()
-        self.base_seed = qmc.hash32(mi.UInt32(seed), 0xA511E9B3, *extra)
+        self.base_seed = sequences.hash32(mi.UInt32(seed), 0xA511E9B3, *extra)
         dr.make_opaque(self.base_seed)            # a new seed reuses the compiled kernels
         self.dimension = dr.zeros(mi.UInt32, width)
 
@@ -172,9 +172,9 @@ class SequenceSampler(mi.Sampler):
     def _value(self, dim):
         """Coordinate ``dim`` (UInt32 per lane) of each lane's point."""
         in_table = dim < self.max_dim
-        value = qmc.sample(self.sequence, self.sample_index, dr.select(in_table, dim, 0), scramble=self.scramble,
-                           seed=qmc.hash32(self.pixel, self.base_seed))
-        fallback = qmc.to_unit(qmc.hash32(self.pixel, self.sample_index, dim, self.base_seed))
+        value = sequences.sample(self.sequence, self.sample_index, dr.select(in_table, dim, 0), scramble=self.scramble,
+                           seed=sequences.hash32(self.pixel, self.base_seed))
+        fallback = sequences.to_unit(sequences.hash32(self.pixel, self.sample_index, dim, self.base_seed))
         return dr.select(in_table, value, fallback)
 
     def next_1d(self, active=True):

@@ -1,5 +1,5 @@
 """The `sobol` sampler (user reference: the class docstring)."""
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.sequence_sampler import SequenceSampler, reference
 
 
@@ -8,4 +8,4 @@ class SobolSampler(SequenceSampler):
                         'hash-based Owen scrambling',
                         'Use powers of two for ``sample_count``: the first 2^m Sobol points are a (t, m, s)-net.')
     sequence = "sobol"
-    max_dim = qmc.max_dim(sequence)
+    max_dim = sequences.max_dim(sequence)

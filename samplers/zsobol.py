@@ -6,7 +6,7 @@ wavefront and pi a random order of the pixel's samples per padded dimension (as 
 ``padded_sobol``: without it the scramble's nesting pairs the samples of different
 dimensions in one dyadic pattern, measured 1-2 % higher errors on Bekaert's box). For
 each padded dimension g is Owen-scrambled as an m + log2(pixels)-bit
-number (:func:`mi_plugins.qmc.owen_scramble`: its top bit flipped at random, every lower
+number (:func:`mi_plugins.base.sequences.owen_scramble`: its top bit flipped at random, every lower
 bit by a hash of the bits above it, the dimension and the seed); the point is then
 coordinate 0 (and 1) of the Sobol sequence at the scrambled index, Owen-scrambled with
 one key per dimension for the whole image.
@@ -22,7 +22,7 @@ instead (one digit is a 2 x 2 quad of its Morton order); along rows that gains n
 over the base-2 scramble, which costs one hash per call instead of a table permutation
 per digit.
 """
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 from mi_plugins.samplers.padded_sobol import PaddedSobolSampler
 from mi_plugins.samplers.sequence_sampler import reference
 
@@ -57,8 +57,8 @@ class ZSobolSampler(PaddedSobolSampler):
         # that the scramble's nesting does not pair the samples of different dimensions
         order, _ = super()._index_and_key()
         g = (self.pixel << self.sample_bits) | order
-        key = qmc.hash32(self.dimension, self.base_seed)          # one key per dimension, whole image
+        key = sequences.hash32(self.dimension, self.base_seed)          # one key per dimension, whole image
         if self.index_bits == 0:                                  # one pixel, one sample
             return g, key
         top = 32 - self.index_bits                                # g's bits at the top of the word
-        return qmc.owen_scramble(g << top, qmc.hash32(key, 0x1D3)) >> top, key
+        return sequences.owen_scramble(g << top, sequences.hash32(key, 0x1D3)) >> top, key

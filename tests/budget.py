@@ -156,7 +156,7 @@ def ratio_tail(name, lo, hi):
     if data is None:
         raise AssertionError("ratio test %r: no measured distribution in %s (run "
                              "`python3 tests/statistics_report.py --measure-ratios`)" % (name, RATIO_DATA))
-    from mi_plugins.analytic import stats
+    from mi_plugins.verify.analytic import stats
     logs = np.log(np.asarray(data["values"], dtype=np.float64))
     n = logs.size
     m, s = logs.mean(), logs.std(ddof=1) * math.sqrt(1.0 + 1.0 / n)

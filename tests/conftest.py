@@ -12,7 +12,7 @@ mi.set_variant("llvm_ad_rgb")
 import drjit as dr  # noqa: E402
 
 import mi_plugins  # noqa: E402,F401  (registers the plugins)
-from mi_plugins.analytic import harness  # noqa: E402
+from mi_plugins.verify.analytic import harness  # noqa: E402
 
 import budget  # noqa: E402
 from budget import seed  # noqa: E402,F401  (re-exported for the tests)
@@ -36,7 +36,7 @@ def furnace_rmse(integrator, seeds, resolution, geometry="box"):
     """RMS over ``seeds`` of the per-image RMSE of ``integrator`` (a plugin dict) on the
     furnace ``geometry`` (albedo 0.5, emission 0.5: radiance 1 everywhere), one render
     per seed."""
-    from mi_plugins import analytic
+    from mi_plugins.verify import analytic
     import numpy as np
     case = analytic.furnace(0.5, 0.5, geometry, resolution=resolution)
     scene = case.scene(integrator)

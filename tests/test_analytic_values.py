@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mi_plugins import analytic
-from mi_plugins.analytic.classic import default_sphere_emission
+from mi_plugins.verify import analytic
+from mi_plugins.verify.analytic.classic import default_sphere_emission
 
 
 def test_furnace_value_and_truncation():
@@ -103,7 +103,7 @@ def test_cases_registry_builds_every_case():
 
 def test_mesh_diffuse_sphere_mean_emission_from_the_loaded_meshes():
     import mitsuba as mi
-    from mi_plugins.meshtable import MeshTable
+    from mi_plugins.patches.meshtable import MeshTable
     case = analytic.diffuse_sphere(albedo=0.5, geometry="sphere_mesh")
     scene = case.scene()
     table = MeshTable(scene, "test")

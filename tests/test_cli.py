@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import exr
+from mi_plugins.app import exr
 
 from conftest import REPO
 
@@ -37,8 +37,8 @@ def test_verify_subset_with_reports(tmp_path):
 def _verify_in_process(monkeypatch, capsys, specs, *args):
     """`mi-plugins verify` in this process with the matrix's integrators replaced by
     ``specs``: (exit status, printed output)."""
-    from mi_plugins import cli
-    from mi_plugins.analytic import matrix
+    from mi_plugins.app import cli
+    from mi_plugins.verify.analytic import matrix
     monkeypatch.setattr(matrix, "INTEGRATORS", specs)
     status = cli.main(["verify", "--quick"] + list(args))
     return status, capsys.readouterr().out
@@ -47,7 +47,7 @@ def _verify_in_process(monkeypatch, capsys, specs, *args):
 def test_verify_exit_status_and_known_failure_reporting(monkeypatch, capsys):
     """Exit status 0 when every check passes, is a documented known failure (XFAIL, or
     XPASS when the budget cannot see it) or not applicable; 1 on an unexpected failure."""
-    from mi_plugins.analytic.matrix import IntegratorSpec
+    from mi_plugins.verify.analytic.matrix import IntegratorSpec
     right = IntegratorSpec({"type": "path"}, quick_spp=4, quick_runs=16)
     # a deliberately wrong row: renders depth 3, compared with the untruncated value
     wrong = IntegratorSpec({"type": "path", "max_depth": 3}, quick_spp=4, quick_runs=16, exact_depth=-1)
@@ -64,7 +64,7 @@ def test_verify_exit_status_and_known_failure_reporting(monkeypatch, capsys):
 
 def test_verify_rows_of_the_package_integrators_pass():
     """The matrix rows of this package's integrators (quick budgets) on two cases."""
-    from mi_plugins.analytic import matrix
+    from mi_plugins.verify.analytic import matrix
     rows = [name for name in matrix.INTEGRATORS if name.split("+")[0] in ("stochastic_ray", "ray_bundle",
                                                                            "qmc_lighttrace")]
     assert len(rows) >= 5
@@ -104,7 +104,8 @@ def test_render_errors_are_one_line(tmp_path):
 
 def test_interrupted_render_keeps_finished_passes():
     import mitsuba as mi
-    from mi_plugins import analytic, passes
+    from mi_plugins.verify import analytic
+    from mi_plugins.app import passes
     scene = analytic.keller_cube(resolution=8).scene("path")
 
     def stop_after_two(done, total):
@@ -146,7 +147,10 @@ def test_ctrl_c_writes_the_finished_passes(tmp_path):
 def test_interrupted_iterative_render_keeps_finished_iterations(integrator):
     """Ctrl-C (here: raised by the progress hook) inside the second pass of an iterative
     integrator keeps pass 1 and the finished iterations of pass 2, weighted by their share."""
-    from mi_plugins import analytic, passes
+    from mi_plugins.verify import analytic
+    from mi_plugins.app import passes
+    from mi_plugins.base import errors
+    from mi_plugins.render import pass_seeds
     scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(integrator)
     integ = scene.integrator()
     per_pass = integ.iteration_count(1)
@@ -179,7 +183,10 @@ def test_interrupted_pass_weighting_matches_separate_renders(integrator):
     weighted average of the two passes rendered separately with the same seeds:
     (pass 1 x spp 1 + partial pass 2 x spp 2 x share) / (spp 1 + spp 2 x share), where
     share is the fraction of pass 2's averaged iterations finished (16 of 32)."""
-    from mi_plugins import analytic, passes
+    from mi_plugins.verify import analytic
+    from mi_plugins.app import passes
+    from mi_plugins.base import errors
+    from mi_plugins.render import pass_seeds
     scene = analytic.furnace(0.5, 0.5, "box", resolution=8).scene(integrator)
     integ = scene.integrator()
     seed = budget.seed(3)
@@ -241,7 +248,7 @@ def tiny_config(tmp_path, config="keller_cube.xml", size=8):
 
 def render_in_process(capsys, *args):
     """`mi-plugins render ARGS` in this process: (exit status, stdout, stderr)."""
-    from mi_plugins import cli
+    from mi_plugins.app import cli
     status = cli.main(["render"] + [str(a) for a in args])
     out, err = capsys.readouterr()
     return status, out, err
@@ -259,7 +266,9 @@ def error_line(err):
 @pytest.fixture
 def no_render(monkeypatch):
     """Fail the test if `mi-plugins render` starts loading or rendering the scene."""
-    from mi_plugins import passes
+    from mi_plugins.app import passes
+    from mi_plugins.base import errors
+    from mi_plugins.render import pass_seeds
 
     def refuse(*args, **kwargs):
         raise AssertionError("rendering started")
@@ -268,12 +277,12 @@ def no_render(monkeypatch):
 
 
 def _non_mesh_error():
-    from mi_plugins.meshtable import NonMeshShapeError
+    from mi_plugins.patches.meshtable import NonMeshShapeError
     return NonMeshShapeError("stochastic_ray: shape 'sphere' (Sphere) is not a triangle mesh")
 
 
 def _parameter_error():
-    from mi_plugins.params import parameter_error
+    from mi_plugins.base.params import parameter_error
     return parameter_error("stochastic_ray", [("iterations", 0)], "1 or more")
 
 
@@ -356,7 +365,7 @@ def test_render_checks_the_output_directory_before_rendering(tmp_path, capsys, n
 def test_verify_suite_scenes_runs_the_conformance_suite(tmp_path, capsys):
     """`verify --suite scenes` runs the conformance suite (here one cheap combination)
     and writes its reports; --list names its integrators and scenes."""
-    from mi_plugins import cli
+    from mi_plugins.app import cli
     assert cli.main(["verify", "--suite", "scenes", "--list"]) == 0
     assert "no_emitters" in capsys.readouterr().out
     status = cli.main(["verify", "--suite", "scenes", "--scenes", "no_emitters", "--integrators", "stochastic_ray",

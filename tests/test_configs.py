@@ -7,9 +7,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic
-from mi_plugins.analytic import export, harness
-from mi_plugins.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
+from mi_plugins.verify import analytic
+from mi_plugins.verify.analytic import export, harness
+from mi_plugins.verify.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
 
 from conftest import REPO
 

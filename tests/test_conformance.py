@@ -1,7 +1,7 @@
 """Conformance suite: the package's integrators against Mitsuba's `path` on ordinary scenes.
 
 One test per (scene, integrator): its outcome must be the expected one (PASS, or the
-documented REFUSED / N/A of ``mi_plugins.conformance.expectations``); a PASS must also
+documented REFUSED / N/A of ``mi_plugins.verify.conformance.expectations``); a PASS must also
 have the power to see a relative error of ``POWER_LIMIT`` of the image mean. The
 combinations that fail on the current code are listed in ``KNOWN_DEFECTS`` as strict
 expected failures: fixing one turns its test into an error, and its entry must then be
@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins import conformance
-from mi_plugins.conformance import compare, expectations, outcomes, runner
+from mi_plugins.verify import conformance
+from mi_plugins.verify.conformance import compare, expectations, outcomes, runner
 
 #: every PASS of this file must detect a relative error of the image mean of this size
 #: (two-sample test against a noisy reference, 16 + 16 runs, < 3 minutes for the file;

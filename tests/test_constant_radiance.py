@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from mi_plugins import analytic
-from mi_plugins.analytic import constant_radiance as cr
-from mi_plugins.analytic.harness import compare, render_runs
+from mi_plugins.verify import analytic
+from mi_plugins.verify.analytic import constant_radiance as cr
+from mi_plugins.verify.analytic.harness import compare, render_runs
 
 RES = 16
 #: (BSDF, simulated-emission estimator). The rough conductor reflects 0.8: with Mitsuba's

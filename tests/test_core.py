@@ -4,9 +4,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, seeds
-from mi_plugins.analytic import harness
-from mi_plugins.progress import Progress
+from mi_plugins.verify import analytic
+from mi_plugins.base import seeds
+from mi_plugins.verify.analytic import harness
+from mi_plugins.render.progress import Progress
 
 import budget
 
@@ -122,7 +123,7 @@ def _wide_filter_check(crop, runs=48, spp=16):
 
 
 def test_without_the_edge_compensation_the_wide_filter_check_fails(monkeypatch):
-    from mi_plugins.integrators.core import Frame
+    from mi_plugins.render.frame import Frame
     monkeypatch.setattr(Frame, "_edge_coverage", lambda self: 1.0)
     assert not _wide_filter_check({}, runs=16, spp=8)["passed"]
 
@@ -132,7 +133,7 @@ def test_a_sensor_with_one_fixed_ray_gets_one_lane_per_camera_sample():
     one lane per camera sample, each draws its own gather numbers, and the spread over
     seeds shrinks with the spp (measured: ratio 0.10 at 64x the spp, 1/8 expected; before,
     every sample of the pixel shared one gather: ratio 0.68, a failure here)."""
-    from mi_plugins.coverage import matrix
+    from mi_plugins.verify.coverage import matrix
     scene = mi.load_dict(matrix.rows()["sensor:radiancemeter"].build(8))
     integ = mi.load_dict({"type": "qmc_lighttrace", "samples": 10000})
     spread = {}

@@ -1,8 +1,8 @@
 """The coverage matrix: every feature Mitsuba can put in a scene against every package
-integrator (``mi_plugins.coverage``; the table is ``docs/coverage.md``).
+integrator (``mi_plugins.verify.coverage``; the table is ``docs/coverage.md``).
 
 One test per cell: its outcome must be the expected one (PASS, or the documented
-REFUSED / N/A of ``mi_plugins.coverage.expected``), a PASS must see a relative error of
+REFUSED / N/A of ``mi_plugins.verify.coverage.expected``), a PASS must see a relative error of
 the image mean of ``matrix.POWER_LIMIT`` (no cell may declare a looser limit) and run
 within ``matrix.SLOWNESS_LIMIT`` times the reference's seconds per run. The cells that
 fail on the current code are listed in ``KNOWN_DEFECTS`` as strict expected failures
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.conformance import outcomes
-from mi_plugins.coverage import catalog, expected, matrix, rows
+from mi_plugins.verify.conformance import outcomes
+from mi_plugins.verify.coverage import catalog, expected, matrix, rows
 
 #: every PASS of this file must detect a relative error of the image mean of this size
 #: (the matrix's rule: a cell's ``Spec.power`` entry may only be stricter)
@@ -175,7 +175,7 @@ class _Refusing(mi.SamplingIntegrator):
         props.get("max_depth", -1)     # every cell passes its depth
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
-        from mi_plugins.support import Unsupported
+        from mi_plugins.base.errors import Unsupported
         raise Unsupported("coverage_refusing", "diffuse", "the BSDF 'diffuse' of shape 'subject'", "a test",
                           "use path")
 

@@ -1,14 +1,14 @@
-"""Patches split where they lie partly in the dark (mi_plugins.darkness), and vertex
-values that keep the patch averages (mi_plugins.patchfield)."""
+"""Patches split where they lie partly in the dark (mi_plugins.patches.darkness), and vertex
+values that keep the patch averages (mi_plugins.solution.patchfield)."""
 import mitsuba as mi
 import numpy as np
 import pytest
 
 import budget
-from mi_plugins import darkness
-from mi_plugins.conformance import runner
-from mi_plugins.meshtable import MeshTable
-from mi_plugins.patchfield import PatchField
+from mi_plugins.patches import darkness
+from mi_plugins.verify.conformance import runner
+from mi_plugins.patches.meshtable import MeshTable
+from mi_plugins.solution.patchfield import PatchField
 
 T = mi.ScalarTransform4f
 
@@ -187,7 +187,7 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
     matches path within the noise with the cut patches split; without the cut (only the
     dark splits) the floor patches under the panel carry the light behind it to the front
     and the image is about 16 % too bright (test of the test)."""
-    from mi_plugins import meshtable
+    from mi_plugins.patches import meshtable
     scene = panel_on_floor()
     ref, ref_se = _mean_and_se(scene, {"type": "path"}, 1024, 8, 50)
     # (the default patches: the panel's line runs through a row of the floor's)
@@ -205,12 +205,14 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
 @pytest.mark.parametrize("integrator", ["qmc_lighttrace", "ray_bundle"])
 def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     """The smooth field's vertices on the panel's line are not shared by the floor's
-    patches on its two sides (mi_plugins.patchfield.separate): along the panel's foot the
+    patches on its two sides (mi_plugins.solution.patchfield.separate): along the panel's foot the
     smooth display matches path within the noise (-1.8 and -1.7 standard errors
     measured). Test of the test: with the vertices shared, the field is wrong there (the
     lit side's light crosses the line, and the corrections push the row in front of it
     below 0 to keep its patches' averages: -7.6 and -6.7 standard errors)."""
-    from mi_plugins import meshtable, patchfield
+    from mi_plugins.base import queries
+    from mi_plugins.patches import build, meshtable, tessellation
+    from mi_plugins.solution import patchfield
     scene = panel_on_floor()
     foot = np.s_[10:11, 4:12]          # the floor along the panel's foot, in front of it (16 px)
     ref, ref_se = _mean_and_se(scene, {"type": "path"}, 1024, 8, 54, foot)
@@ -257,7 +259,7 @@ def test_a_loaded_solution_replays_the_recorded_dark_splits(tmp_path, monkeypatc
     Test of the test: a file without the record is measured again, and a measurement
     that differs is refused."""
     import mi_plugins
-    from mi_plugins.solution import Solution, SolutionMismatch
+    from mi_plugins.solution.solution import Solution, SolutionMismatch
     settings = {"type": "qmc_lighttrace", "samples": 2000, "patch_size": 0.1, "display": "patches"}
     scene = mi.load_dict(room(), parallel=False)
     integ = mi.load_dict(settings)
@@ -297,7 +299,7 @@ def test_a_load_renumbers_the_splits_when_the_shapes_load_in_another_order(tmp_p
     Mitsuba's parallel loading) numbers them otherwise, and a load renumbers the records:
     the same image. Test of the test: the scene's shapes really are in another order."""
     import mi_plugins
-    from mi_plugins.solution import Solution
+    from mi_plugins.solution.solution import Solution
     settings = {"type": "qmc_lighttrace", "samples": 20000, "patch_size": 0.1, "display": "patches"}
     d = room()
     scene = mi.load_dict(d, parallel=False)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mi_plugins
-from mi_plugins import demo, timesplit
+from mi_plugins.app import demo, timesplit
 
 pytestmark = pytest.mark.skipif(not mi.variant(), reason="needs a Mitsuba variant")
 

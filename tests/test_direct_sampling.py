@@ -1,6 +1,6 @@
 """Next-event estimation of the displays and of ``ray_bundle``: a BSDF sample (MIS) only
-where the light sample alone could have unbounded weights (``sampling.near_emitters``,
-``sampling.needs_bsdf_sample``), the light sample alone at full weight elsewhere.
+where the light sample alone could have unbounded weights (``direct.near_emitters``,
+``direct.needs_bsdf_sample``), the light sample alone at full weight elsewhere.
 
 Checked: which points count as near; the estimate's mean equals that of MIS everywhere,
 at near and far points (test of the test: the light sample kept at its MIS weight
@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins import analytic, sampling
-from mi_plugins.lights import sample_emitter_direction
+from mi_plugins.verify import analytic
+from mi_plugins.light import direct
+from mi_plugins.light.sources import sample_emitter_direction
 
 T = mi.ScalarTransform4f
 LAMP = 0.3         # side of the square lamp under the ceiling (y = 1.9)
@@ -49,19 +50,19 @@ def _points(scene):
 
 def test_near_emitters_marks_the_points_next_to_emitting_shapes():
     scene = _room()
-    near = np.array(sampling.near_emitters(scene, _points(scene).p))
+    near = np.array(direct.near_emitters(scene, _points(scene).p))
     assert not near[:4].any() and near[4:].all(), near
     # no emitting shape: nothing is near (a point light's samples have bounded weights)
     lit = _room({"lamp": {"type": "point", "position": [0, 1.9, 0]}})
-    assert not np.array(sampling.near_emitters(lit, _points(lit).p)).any()
+    assert not np.array(direct.near_emitters(lit, _points(lit).p)).any()
     # an environment emitter, or more emitting shapes than the limit: everything is near
     sky = _room({"sky": {"type": "constant"}})
-    assert np.array(sampling.near_emitters(sky, _points(sky).p)).all()
+    assert np.array(direct.near_emitters(sky, _points(sky).p)).all()
     many = {"l%d" % i: {"type": "rectangle", "to_world": T().translate([0.1 * i, 1.95, 0]).scale(0.01),
                         "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1.0}}}
-            for i in range(sampling.MAX_NEAR_SHAPES + 1)}
+            for i in range(direct.MAX_NEAR_SHAPES + 1)}
     crowded = _room(many)
-    assert np.array(sampling.near_emitters(crowded, _points(crowded).p)).all()
+    assert np.array(direct.near_emitters(crowded, _points(crowded).p)).all()
 
 
 def _estimates(scene, how, seed):
@@ -80,10 +81,10 @@ def _estimates(scene, how, seed):
     if how == "broken":
         ds, em = sample_emitter_direction(scene, si, light, active)
         f, pdf = bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), ds.pdf > 0)
-        value = mi.Color3f(f) * em * sampling._power_heuristic(ds.pdf, pdf)
+        value = mi.Color3f(f) * em * direct._power_heuristic(ds.pdf, pdf)
     else:
-        mis = sampling.needs_bsdf_sample(scene, si, bsdf) if how == "needed" else True
-        value = sampling.direct_light(scene, si, bsdf, light, active, bs, mis=mis)
+        mis = direct.needs_bsdf_sample(scene, si, bsdf) if how == "needed" else True
+        value = direct.direct_light(scene, si, bsdf, light, active, bs, mis=mis)
     return np.array(mi.luminance(value)).reshape(n, SAMPLES)
 
 
@@ -118,5 +119,5 @@ def test_smooth_display_stays_bounded_at_emitting_edges(integrator, monkeypatch)
         return float(np.array(mi.render(scene, spp=1, seed=budget.seed(23))).max()) / 0.5
 
     assert peak() < 5
-    monkeypatch.setattr(sampling, "near_emitters", lambda scene, p: dr.zeros(mi.Bool, dr.width(p)))
+    monkeypatch.setattr(direct, "near_emitters", lambda scene, p: dr.zeros(mi.Bool, dr.width(p)))
     assert peak() > 5

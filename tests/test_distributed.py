@@ -18,7 +18,8 @@ import pytest
 from conftest import REPO
 
 pytest.importorskip("distributed")
-from mi_plugins import distributed, exr, passes  # noqa: E402
+from mi_plugins import distributed
+from mi_plugins.app import exr, passes
 from mi_plugins.distributed import dask_engine, plan, scene_bundle  # noqa: E402
 
 KELLER = os.path.join(REPO, "configs", "keller_cube.xml")   # L = 0.5 everywhere, 32 x 32 px
@@ -110,7 +111,7 @@ def test_every_task_replays_one_workers_dark_splits(monkeypatch, tmp_path):
     process plays both: its splits with a judgement that finds 3 patches half dark each
     round are recorded, and a plain load replays them. Test of the test: a task without
     the record numbers the patches as its own process does."""
-    from mi_plugins import darkness
+    from mi_plugins.patches import darkness
     path = scene_copy(str(tmp_path), INTEGRATORS["qmc_lighttrace"])
     shipped = distributed.bundle(path, {})
 
@@ -152,7 +153,7 @@ def test_particle_ranges_are_the_single_process_point_set(clients, scenes):
     single-process trace of all paths up to the fixed-point rounding of each range
     (relative 1e-6); the gather then uses the sum. Test of the test: ranges that skip
     one path differ."""
-    from mi_plugins.integrators.qmc_particles import trace_range
+    from mi_plugins.integrators.qmc_lighttrace.particles import trace_range
     scene = mi.load_file(scenes["qmc_lighttrace"])
     integ = scene.integrator()
     table = integ.patch_table(scene)
@@ -547,7 +548,7 @@ def test_views_share_one_solve_shipped_to_every_worker(integrator, clients, tmp_
 
 
 def test_cli_renders_every_sensor(tmp_path):
-    from mi_plugins import cli
+    from mi_plugins.app import cli
     xml = ('<integrator type="qmc_lighttrace"><integer name="samples" value="20000"/>'
            '<string name="display" value="smooth"/></integrator>')
     path = _two_sensors(scene_copy(str(tmp_path), xml))

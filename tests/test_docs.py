@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from mi_plugins import reference
+from mi_plugins.app import reference
 from test_parameters import TABLE
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

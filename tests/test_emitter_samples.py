@@ -11,7 +11,7 @@ import pytest
 
 from conftest import REPO
 
-from mi_plugins.integrators import display
+from mi_plugins.solution import display
 
 T = mi.ScalarTransform4f
 SEEDS = (1, 2, 3)
@@ -128,7 +128,7 @@ def test_the_edge_pixels_follow_the_lamps_edges():
     """The pixels that take further rays: every pixel the lamp's edge crosses, none more
     than a pixel away from one (the lamp's inside and the floor take none); a
     constant-radiance scene (every surface emits alike) takes none."""
-    from mi_plugins.integrators.core import Frame
+    from mi_plugins.render.frame import Frame
     scene = lamp_scene()
     frame = Frame(scene, scene.sensors()[0], 1, 0, "test")
     shifts, mask, pixels = display.edge_pixels(frame, -1, False, 8)

@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic
+from mi_plugins.verify import analytic
 
 import budget
 from test_bsdfs import (QUADRATURE_ERROR, _channels, _rgb, albedo_by_quadrature, cell_interior_uv, checkerboard,

@@ -1,4 +1,4 @@
-"""Narrow gaps (mi_plugins.gaps): the patches at a gap's mouth, which camera paths do not
+"""Narrow gaps (mi_plugins.patches.gaps): the patches at a gap's mouth, which camera paths do not
 read, and the lamps facing a surface across a gap, which ray_bundle refuses. The scene of
 the report: Mitsuba's Cornell box with its lamp turned up to the ceiling 1 cm above."""
 import mitsuba as mi
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins import gaps, meshtable
-from mi_plugins.conformance import runner, scene_library
-from mi_plugins.meshtable import MeshTable, default_patch_size
+from mi_plugins.patches import gaps, meshtable
+from mi_plugins.verify.conformance import runner, scene_library
+from mi_plugins.patches.meshtable import MeshTable
+from mi_plugins.patches.tessellation import default_patch_size
 
 T = mi.ScalarTransform4f
 
@@ -91,7 +92,7 @@ def test_surfaces_that_emit_themselves_are_no_dark_cover():
     0.13 apart), which ray_bundle renders exactly, had been refused at the quick matrix's
     patch size 0.43; two facing lamps are no trap. The test of the test: the same panels
     with the upper one not emitting are."""
-    from mi_plugins import analytic
+    from mi_plugins.verify import analytic
     assert gaps.trapped_lights(analytic.cases()["bekaert_sierpinski"]().scene({"type": "path"}), 0.22) == []
     assert gaps.trapped_lights(_facing_panels(True), 0.1) == []
     found = gaps.trapped_lights(_facing_panels(False), 0.1)

@@ -1,4 +1,4 @@
-"""Garbage collection around the package's renders (mi_plugins.collection).
+"""Garbage collection around the package's renders (mi_plugins.base.collection).
 
 Dr.Jit traces a call through a plugin pointer for every live instance of the plugin's
 kind; an instance freed by a garbage collection while such a call is traced (in another
@@ -17,7 +17,7 @@ import drjit as dr
 import pytest
 
 from conftest import REPO
-from mi_plugins import collection
+from mi_plugins.base import collection
 from mi_plugins.distributed import plan
 
 CONFIGS = {

@@ -1,4 +1,4 @@
-"""The glTF 2.0 export of a solution's baked radiance (``mi_plugins.gltf_export``), read back
+"""The glTF 2.0 export of a solution's baked radiance (``mi_plugins.solution.gltf``), read back
 with a maintained glTF reader (pygltflib): structure, vertex counts, index ranges, and
 colours against the ``baked`` display at the same surface points. Test of the test: a
 truncated file, swapped colour channels and an index past the vertices fail the check.
@@ -13,8 +13,8 @@ import pytest
 
 import budget
 import mi_plugins
-from mi_plugins.integrators import display
-from mi_plugins.solution_export import baked_shapes
+from mi_plugins.solution import display
+from mi_plugins.solution.export import baked_shapes
 from test_solution import _floor_scene, _pixel_rays
 
 pygltflib = pytest.importorskip("pygltflib", reason="the glTF reader of the tests (pip install 'mi-plugins[test]')")
@@ -188,10 +188,10 @@ def test_an_incomplete_solution_or_a_bad_name_is_refused(solved, tmp_path):
     scene, solution, table = solved
     with pytest.raises(ValueError, match=r"must end in \.glb .* or \.gltf"):
         solution.to_gltf(str(tmp_path / "room.obj"))
-    bare = mi_plugins.solution.Solution(solution.tables, solution.areas, solution.meta)
+    bare = mi_plugins.solution.solution.Solution(solution.tables, solution.areas, solution.meta)
     with pytest.raises(ValueError, match="Solution.to_gltf: this solution is not complete"):
         bare.to_gltf(str(tmp_path / "room.glb"))
-    broken = mi_plugins.solution.Solution(solution.tables, solution.areas, solution.meta, field=solution.field,
+    broken = mi_plugins.solution.solution.Solution(solution.tables, solution.areas, solution.meta, field=solution.field,
                                           radiance=solution.radiance.copy(), emission=solution.emission)
     broken.radiance[3, 0, 1] = np.nan
     with pytest.raises(ValueError, match=r"Solution.to_gltf: the solution's radiance is not finite at [1-9]\d* of"):

@@ -10,9 +10,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, cli
-from mi_plugins.analytic import classic, gradient_matrix
-from mi_plugins.analytic.gradients import check_gradient, render_gradient_runs
+from mi_plugins.verify import analytic
+from mi_plugins.app import cli
+from mi_plugins.verify.analytic import classic, gradient_matrix
+from mi_plugins.verify.analytic.gradients import check_gradient, render_gradient_runs
 
 import budget
 
@@ -141,7 +142,7 @@ def test_finding_prb_forward_mode_on_delta_scenes():
     out = run_python(
         "import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); import mi_plugins\n"
         "from mi_plugins import analytic\n"
-        "from mi_plugins.analytic.gradients import check_gradient\n"
+        "from mi_plugins.verify.analytic.gradients import check_gradient\n"
         "case = analytic.mirror_sphere(0.5, 0.5, resolution=8)\n"
         "try:\n"
         "    check_gradient(case, %r, 'emission', spp=4, runs=16)\n"

@@ -6,10 +6,10 @@ import warnings
 import numpy as np
 import pytest
 
-from mi_plugins import analytic
-from mi_plugins.analytic import harness, stats
-from mi_plugins.analytic.classic import MATRIX_CASES
-from mi_plugins.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
+from mi_plugins.verify import analytic
+from mi_plugins.verify.analytic import harness, stats
+from mi_plugins.verify.analytic.classic import MATRIX_CASES
+from mi_plugins.verify.analytic.matrix import INTEGRATORS, SPHERE_NEE_BIAS
 
 import budget
 

@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import pytest
 
-from mi_plugins import analytic
+from mi_plugins.verify import analytic
 
 CONFIGS = {
     # adaptive=false: the steps of the planned render only (a burn-in of 3 leaves the furnace's average

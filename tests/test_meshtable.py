@@ -6,7 +6,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins.meshtable import MeshTable, NonMeshShapeError
+from mi_plugins.patches.meshtable import MeshTable, NonMeshShapeError
 
 import budget
 
@@ -25,7 +25,7 @@ SHAPES = {
     "cylinder_long": {"type": "cylinder", "to_world": T().rotate([1, 0, 0], -90).scale([0.3, 0.3, 2])},
     "disk_elliptic": {"type": "disk", "to_world": T().rotate([0, 1, 0], 30).scale([0.4, 1.2, 1])},
 }
-#: scales Mitsuba warns about and does not follow (mi_plugins.tessellation.distortion)
+#: scales Mitsuba warns about and does not follow (mi_plugins.patches.tessellation.distortion)
 DISTORTED = {
     "sphere_uneven": {"type": "sphere", "to_world": T().translate([0, 0.5, 0]).scale([0.8, 0.4, 0.4])},
     "sphere_sheared": {"type": "sphere", "to_world": mi.ScalarTransform4f(
@@ -84,23 +84,23 @@ def test_cells_among_mesh_elements_keep_their_own_frames():
 
 
 def test_a_cached_table_runs_its_check_only_when_it_builds():
-    from mi_plugins import meshtable
+    from mi_plugins.patches import build, meshtable, tessellation
     scene = mi.load_dict({"type": "scene", "s": SHAPES["sphere"]})
     calls = []
     for _ in range(2):
-        meshtable.cached_table(scene, "test", 0.3, before_build=lambda: calls.append(1))
+        build.cached_table(scene, "test", 0.3, before_build=lambda: calls.append(1))
     assert len(calls) == 1
-    meshtable.cached_table(scene, "test", 0.2, before_build=lambda: calls.append(1))
+    build.cached_table(scene, "test", 0.2, before_build=lambda: calls.append(1))
     assert len(calls) == 2
 
 
 def test_ray_bundle_predicts_its_patches_only_for_a_new_table(monkeypatch):
     """The memory check counts the patches without building them (seconds on a million
     triangles): not again for a render whose table is kept."""
-    from mi_plugins import analytic
-    from mi_plugins.integrators.ray_bundle import limits
-    calls, real = [], limits.predicted_patches
-    monkeypatch.setattr(limits, "predicted_patches", lambda *a, **k: calls.append(1) or real(*a, **k))
+    from mi_plugins.verify import analytic
+    from mi_plugins.integrators.ray_bundle import memory
+    calls, real = [], memory.predicted_patches
+    monkeypatch.setattr(memory, "predicted_patches", lambda *a, **k: calls.append(1) or real(*a, **k))
     scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(
         {"type": "ray_bundle", "iterations": 2, "burn_in": 1, "chains": 4, "resolution": 8, "display": "smooth"})
     for seed in (1, 2):
@@ -112,7 +112,8 @@ def test_a_render_hashes_its_scene_once(monkeypatch):
     """Inside a render the scene's digests are computed once (a million triangles: 0.1 s a
     time, asked for up to four times); outside, every call hashes again, so an edit
     between renders is seen."""
-    from mi_plugins import analytic, fingerprint
+    from mi_plugins.verify import analytic
+    from mi_plugins.base import fingerprint
     calls, real = [], fingerprint.shape_digest
     monkeypatch.setattr(fingerprint, "shape_digest", lambda shape: calls.append(1) or real(shape))
     scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(
@@ -134,7 +135,7 @@ def test_patch_points_are_uniform_in_area(name):
 def test_points_uniform_in_uv_would_fail(name, monkeypatch):
     """The test of the test: points uniform in (u, v) are not uniform in area on the disk
     and the sphere."""
-    from mi_plugins import tessellation
+    from mi_plugins.patches import tessellation
     monkeypatch.setattr(tessellation, "sample_cell", lambda kind, b, s: mi.Point2f(dr.lerp(b[0], b[1], s.x),
                                                                                  dr.lerp(b[2], b[3], s.y)))
     assert not _uniform_in_area(name)
@@ -202,8 +203,9 @@ def test_long_triangles_are_split_into_similar_sub_triangles(texcoords):
 def test_sub_triangle_index_without_the_inverted_ones_would_fail(monkeypatch):
     """The test of the test: a lookup that ignores the inverted sub-triangles maps hits
     to the wrong patches."""
-    from mi_plugins import meshtable
-    real = meshtable.sub_triangle_coords
+    from mi_plugins.base import queries
+    from mi_plugins.patches import build, meshtable, tessellation
+    real = tessellation.sub_triangle_coords
     monkeypatch.setattr(meshtable, "sub_triangle_coords",
                         lambda s, b1, b2: (lambda found: (found[0] & ~mi.UInt32(1),) + found[1:])(real(s, b1, b2)))
     scene = _two_triangles(False)
@@ -288,7 +290,7 @@ def _uniform_shares(table):
 def test_conflict_share_of_one_triangle_is_the_cut_off_area():
     """The share of a triangle where the interpolated normal points to the other side: the
     closed form against the barycentric sampling it replaces."""
-    from mi_plugins.normals import conflict_share
+    from mi_plugins.patches.normals import conflict_share
     verts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     faces = np.array([[0, 1, 2]])
     rng = budget.rng(11)
@@ -306,8 +308,8 @@ def _sphere_ply(name, flipped_share, degenerate=0):
     """A closed sphere mesh of shared vertices in a ply without normals (Mitsuba averages
     them from the faces), a share of its triangles wound inward, ``degenerate`` triangles
     of no area added."""
-    from mi_plugins import geometry
-    from mi_plugins.coverage.mesh_rows import smooth_sphere
+    from mi_plugins.verify import geometry
+    from mi_plugins.verify.coverage.mesh_rows import smooth_sphere
     mesh = smooth_sphere(flipped_share=flipped_share)
     extra = np.array([(k, k, k + 1) for k in range(degenerate)], dtype=np.int64).reshape(-1, 3)
     return geometry.mesh_file(geometry.TriangleMesh(mesh.vertices, np.concatenate([mesh.faces, extra]), mesh.uvs),
@@ -320,7 +322,7 @@ def test_vertex_normals_against_the_winding_are_refused(integrator):
     normal and the winding point to opposite sides on a fifth of its area (measured on a
     box 30 % flipped: the patches display 20 % dark, silently). Refused, naming the shape
     and the remedy; consistent winding, and face_normals=true, load and render."""
-    from mi_plugins.support import Unsupported
+    from mi_plugins.base.errors import Unsupported
     lamp = {"type": "point", "position": [0, 0, 0], "intensity": 1.0}
     sensor = {"type": "perspective", "to_world": T().look_at([0, 0, 0.5], [0, 0, -1], [0, 1, 0]),
               "film": {"type": "hdrfilm", "width": 4, "height": 4}}
@@ -366,7 +368,7 @@ def test_shapes_mitsuba_does_not_follow_are_found(name):
     carry uv that do not lie where they are; the tube's surface area is that of a circle
     of its first axis), so patches laid on it cannot be right. Their even variants are
     not flagged (test of the test: the same check on them)."""
-    from mi_plugins import tessellation
+    from mi_plugins.patches import tessellation
     shape = mi.load_dict(DISTORTED[name])
     assert tessellation.distortion(shape) is not None
     for even in ("sphere_rotated", "cylinder_long", "disk_elliptic", "sphere"):

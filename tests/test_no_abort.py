@@ -9,7 +9,7 @@ process fails the test.
 
 Test of the test: the reduced case (a bitmap-textured area light on a mesh, one BSDF for
 every surface) aborts the process when Mitsuba's lazily built uv-space scene is not made
-before the render (``mi_plugins.lights.build_parameterizations`` turned off), and the harness
+before the render (``mi_plugins.light.sources.build_parameterizations`` turned off), and the harness
 calls that a failure.
 """
 import json

@@ -5,7 +5,8 @@ import pytest
 
 import mitsuba as mi
 import mi_plugins
-from mi_plugins import _llvm, registry
+from mi_plugins.base import llvm
+from mi_plugins import registry
 
 from conftest import REPO, run_python, scalar_variant_refusal
 
@@ -81,8 +82,8 @@ def test_old_llvm_gives_clear_error():
 
 
 def test_find_libllvm_returns_a_recent_version():
-    path = _llvm.find_libllvm()
-    assert path is not None and _llvm._major(path) >= _llvm.MIN_LLVM_MAJOR
+    path = llvm.find_libllvm()
+    assert path is not None and llvm._major(path) >= llvm.MIN_LLVM_MAJOR
 
 
 def test_plugin_folders_import_as_subpackages_only(tmp_path):

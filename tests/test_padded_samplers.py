@@ -7,8 +7,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, qmc
-from mi_plugins.analytic import matrix, sampler_independence as independence
+from mi_plugins.verify import analytic
+from mi_plugins.base import sequences
+from mi_plugins.verify.analytic import matrix, sampler_independence as independence
 from mi_plugins.samplers.cmj import grid
 from mi_plugins.samplers.lattice import generator
 from mi_plugins.samplers.padded_sobol import PaddedSobolSampler
@@ -55,7 +56,7 @@ def test_the_dependence_check_catches_coupled_dimensions():
     """Test of the test: `padded_sobol` whose padded dimensions share one key (the same
     shuffle and scramble for every call) couples them completely."""
     def one_key(self):
-        key = qmc.hash32(self.pixel, self.base_seed)
+        key = sequences.hash32(self.pixel, self.base_seed)
         return mi.permute_kensler(self.sample_index, int(self.sample_count()), key), key
     with mock.patch.object(PaddedSobolSampler, "_index_and_key", one_key):
         z, _, freq = _dependence("padded_sobol", 16)
@@ -261,7 +262,7 @@ def test_lattice_generator_maximises_the_shortest_vector():
 def test_a_known_finding_never_excuses_non_finite_pixels(monkeypatch):
     """The matrix reports a check with NaN/inf pixels as FAIL even where the row carries a
     documented finding for the case (a finding explains a bias, not a broken image)."""
-    from mi_plugins.analytic import harness
+    from mi_plugins.verify.analytic import harness
 
     def broken(*args, **kwargs):
         return harness.CheckResult(case="keller_cube", integrator="path", spp=1, runs=2,

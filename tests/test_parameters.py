@@ -1,6 +1,6 @@
 """Every parameter of every plugin, fed bad values through ``mi.load_dict`` AND through
 XML (``mi.load_string``), must be refused with one message format naming the plugin and
-the parameter (mi_plugins.params); good values of every accepted form must load.
+the parameter (mi_plugins.base.params); good values of every accepted form must load.
 
 The table below lists every parameter of the ten plugins with its kind and valid range;
 the bad values are generated from the kind (wrong type: a string for a number, 'false'/
@@ -21,8 +21,8 @@ from xml.sax.saxutils import quoteattr
 import mitsuba as mi
 import pytest
 
-from mi_plugins import params as params_module
-from mi_plugins.params import ParameterError, Params
+from mi_plugins.base import params as params_module
+from mi_plugins.base.params import ParameterError, Params
 
 #: these tests load plugins and render nothing: the module collects their objects at its end
 #: (``_drop_objects``) instead of after every test (tests/conftest.py, ``_collect_scenes``)
@@ -530,7 +530,7 @@ def test_message_format():
 
 
 def test_cli_prints_the_parameter_error_in_one_line(tmp_path, capsys):
-    from mi_plugins import cli
+    from mi_plugins.app import cli
     scene = tmp_path / "bad.xml"
     scene.write_text('<scene version="3.0.0"><integrator type="ray_bundle"><string name="bidirectional" '
                      'value="false"/></integrator></scene>')

@@ -1,7 +1,7 @@
-"""The pytest plugin (mi_plugins/pytest_plugin.py, docs/pytest_plugin.md), run as a user
+"""The pytest plugin (mi_plugins/verify/pytest_plugin.py, docs/pytest_plugin.md), run as a user
 runs it: pytest in a fresh interpreter on a small project written into tmp_path.
 
-``-p mi_plugins.pytest_plugin`` loads the plugin from this checkout, and
+``-p mi_plugins.verify.pytest_plugin`` loads the plugin from this checkout, and
 PYTEST_DISABLE_PLUGIN_AUTOLOAD keeps an installed entry point (and any other installed
 plugin) out of those sessions. The 3 % error is caught with margin: every passing check
 here detects a relative error of 1.5 % (``power=0.015``), half the error it must see.
@@ -54,7 +54,7 @@ def run_pytest(folder, *args):
     env = dict(os.environ, PYTEST_DISABLE_PLUGIN_AUTOLOAD="1",
                PYTHONPATH=os.pathsep.join([REPO] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
     env.pop("PYTEST_ADDOPTS", None)
-    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "mi_plugins.pytest_plugin", "-p", "no:cacheprovider",
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "mi_plugins.verify.pytest_plugin", "-p", "no:cacheprovider",
                         *args], cwd=str(folder), env=env, capture_output=True, text=True, timeout=300)
     return r.returncode, r.stdout + r.stderr
 
@@ -65,11 +65,11 @@ def test_the_entry_point_is_declared_in_pyproject():
         import tomllib
     except ImportError:  # Python < 3.11
         text = open(path).read()
-        assert '[project.entry-points.pytest11]\nmi_plugins = "mi_plugins.pytest_plugin"' in text
+        assert '[project.entry-points.pytest11]\nmi_plugins = "mi_plugins.verify.pytest_plugin"' in text
         return
     with open(path, "rb") as f:
         data = tomllib.load(f)
-    assert data["project"]["entry-points"]["pytest11"] == {"mi_plugins": "mi_plugins.pytest_plugin"}
+    assert data["project"]["entry-points"]["pytest11"] == {"mi_plugins": "mi_plugins.verify.pytest_plugin"}
 
 
 def test_loading_the_plugin_costs_nothing_and_keeps_a_conftest_that_sets_the_variant(tmp_path):
@@ -95,7 +95,7 @@ def test_loading_the_plugin_costs_nothing_and_keeps_a_conftest_that_sets_the_var
 
             def test_the_package_is_fully_imported():
                 assert not mi_plugins._BARE
-                assert mi_plugins.pytest_plugin is sys.modules["mi_plugins.pytest_plugin"]
+                assert mi_plugins.verify.pytest_plugin is sys.modules["mi_plugins.verify.pytest_plugin"]
                 assert "stochastic_ray" in mi_plugins.registered["integrator"]
                 mi.load_dict({"type": "stochastic_ray"})
             """})
@@ -107,7 +107,7 @@ def test_loading_the_plugin_costs_nothing_and_keeps_a_conftest_that_sets_the_var
 def test_the_helper_passes_a_correct_integrator_and_reports_a_3_percent_error(tmp_path):
     folder = project(tmp_path, {"myintegrators.py": INTEGRATORS, "test_example.py": """
         import pytest
-        from mi_plugins.pytest_plugin import assert_matches_analytic
+        from mi_plugins.verify.pytest_plugin import assert_matches_analytic
         import myintegrators
 
         @pytest.mark.parametrize("analytic_case", ["furnace_box", "diffuse_sphere"], indirect=True)

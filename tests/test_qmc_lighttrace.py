@@ -28,12 +28,12 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, geometry
-from mi_plugins.analytic import harness, stats
-from mi_plugins.analytic.case import rgb_dict
-from mi_plugins.analytic.classic import ConstantCase
-from mi_plugins.integrators.qmc_checks import check_gather_lanes
-from mi_plugins.meshtable import MeshTable, NonMeshShapeError  # noqa: F401  (the error type of the refusal)
+from mi_plugins.verify import analytic, geometry
+from mi_plugins.verify.analytic import harness, stats
+from mi_plugins.verify.analytic.case import rgb_dict
+from mi_plugins.verify.analytic.classic import ConstantCase
+from mi_plugins.integrators.qmc_lighttrace.checks import check_gather_lanes
+from mi_plugins.patches.meshtable import MeshTable, NonMeshShapeError  # noqa: F401  (the error type of the refusal)
 
 import budget
 
@@ -259,7 +259,7 @@ def test_a_range_of_paths_draws_what_the_whole_trace_draws(depth):
     two ranges sum to the whole exactly (fixed point). Test of the test: ranges that start
     one path off differ (the PCG32 constructor adds the lane to the stream: seeded so, a
     range drew other numbers than the whole)."""
-    from mi_plugins.integrators.qmc_particles import trace_range
+    from mi_plugins.integrators.qmc_lighttrace.particles import trace_range
     scene = face_view(analytic.keller_cube(resolution=RES)).scene(lighttrace(sequence_depth=depth))
     integ = scene.integrator()
     table = integ.patch_table(scene)
@@ -296,10 +296,10 @@ def test_a_bright_room_keeps_a_finite_variance(monkeypatch):
     image means of 6 seeds agree within 2 % (measured 0.4 %); test of the test: with
     Mitsuba's cap of 0.95 (0.99^2 > 0.95: infinite variance) they spread by more than 5 %
     (measured 14 %)."""
-    from mi_plugins.integrators import qmc_particles
+    from mi_plugins.integrators.qmc_lighttrace import particles
     means = _bright_room_means()
     assert means.std(ddof=1) / means.mean() < 0.02, means
-    monkeypatch.setattr(qmc_particles, "MAX_SURVIVAL", 0.95)
+    monkeypatch.setattr(particles, "MAX_SURVIVAL", 0.95)
     means = _bright_room_means()
     assert means.std(ddof=1) / means.mean() > 0.05, means
 
@@ -880,8 +880,8 @@ def test_particles_choose_lobe_and_direction_with_independent_numbers(name):
 
 
 def coverage_scene(key, res=8):
-    """A coverage-matrix row's scene (``mi_plugins.coverage``) with an integrator slot."""
-    from mi_plugins.coverage import matrix
+    """A coverage-matrix row's scene (``mi_plugins.verify.coverage``) with an integrator slot."""
+    from mi_plugins.verify.coverage import matrix
     build = matrix.rows()[key].build
     return lambda integrator: mi.load_dict(dict(build(res), integrator=integrator))
 
@@ -962,7 +962,7 @@ def test_camera_samples_beyond_a_pass_render_in_passes(monkeypatch):
     same mean, and the noise of all its samples (4 passes of 2 spp: half the noise of one
     pass of 2 spp), each pass with a seed of its own. Test of the test: keeping the last
     pass only gives a noise ratio of 1.05 (measured; 2.05 here)."""
-    from mi_plugins.integrators import display
+    from mi_plugins.solution import display
     box = {"type": "cube", "flip_normals": True, "bsdf": diffuse()}
     scene = lambda: ordinary(lighttrace(samples=20000), INSIDE, box=box, light=lamp(0.8))
     pixels, sr = RES * RES, 2
@@ -972,9 +972,9 @@ def test_camera_samples_beyond_a_pass_render_in_passes(monkeypatch):
     monkeypatch.setattr(display, "MAX_PASS_LANES", pixels * sr * 2)
     frame = type("F", (), {"sample_pixels": lambda self: pixels, "spp": 8})()
     assert check_gather_lanes("qmc_lighttrace", frame, sr) == (2, 4)
-    from mi_plugins.integrators import qmc_gather
-    used, estimate = [], qmc_gather.CameraPaths.estimate
-    monkeypatch.setattr(qmc_gather.CameraPaths, "estimate",
+    from mi_plugins.solution import gather
+    used, estimate = [], gather.CameraPaths.estimate
+    monkeypatch.setattr(gather.CameraPaths, "estimate",
                         lambda self, cam, seed, sr: used.append(seed) or estimate(self, cam, seed, sr))
     split = noise(8)
     assert len(used) == 8 and len(set(used)) == 8, used       # two renders of 4 passes, every seed its own
@@ -1022,7 +1022,7 @@ def test_bad_parameters(params, message):
 
 def test_shapes_without_patches_are_refused():
     """Meshes and Mitsuba's rectangle, disk, sphere and cylinder have patches
-    (mi_plugins.meshtable); other shapes (here an instance) are refused by name."""
+    (mi_plugins.patches.meshtable); other shapes (here an instance) are refused by name."""
     d = analytic.furnace(geometry="box", resolution=8).scene_dict(lighttrace())
     d["group"] = {"type": "shapegroup", "s": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.1)}}
     d["inst"] = {"type": "instance", "shapegroup": {"type": "ref", "id": "group"}}

@@ -24,9 +24,11 @@ import pytest
 
 import drjit as dr
 import mitsuba as mi
-from mi_plugins import analytic, gaps, support
-from mi_plugins.analytic import harness
-from mi_plugins.support import Unsupported
+from mi_plugins.verify import analytic
+from mi_plugins.patches import gaps
+from mi_plugins.base import errors
+from mi_plugins.verify.analytic import harness
+from mi_plugins.base.errors import Unsupported
 from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
 
 import budget
@@ -101,8 +103,8 @@ def test_analytic_cases(name, cfg, runs, res):
 def furnace_cylinder(resolution=RES):
     """The furnace (albedo 0.5, emission 0.5: L = 1) inside a closed analytic cylinder of
     radius 1 from z = -1 to 1 (seen from inside), capped by two analytic disks."""
-    from mi_plugins.analytic.case import rgb_dict, truncated_geometric
-    from mi_plugins.analytic.classic import ConstantCase
+    from mi_plugins.verify.analytic.case import rgb_dict, truncated_geometric
+    from mi_plugins.verify.analytic.classic import ConstantCase
     half = np.full(3, 0.5)
 
     def furnace(shape):
@@ -457,7 +459,7 @@ def test_default_chains_fit_a_quarter_of_the_memory():
     """chains=64 by default, fewer (at least 1) where 64 would need over a quarter of
     the available memory (lanes and lines of a chain); an explicit value is kept (and
     refused when it does not fit)."""
-    from mi_plugins.integrators.ray_bundle.limits import chain_bytes, default_chains
+    from mi_plugins.integrators.ray_bundle.memory import chain_bytes, default_chains
     per_chain = chain_bytes(2000, 32)        # 1000 patches, two sides, 32^2 lines
     assert default_chains(64, 2000, 32, None) == 64
     assert default_chains(64, 2000, 32, 4 * per_chain * 100) == 64
@@ -784,7 +786,7 @@ def _lamp_under_ceiling_error(monkeypatch=None, epsilon=None):
     """mi.cornell_box() with its lamp 1e-4 under the ceiling (the classic Cornell data:
     0.1 mm in 549 mm): the paper's ray_bundle (emission carried by the bundles) against
     path, relative difference of the image means and its SE."""
-    from mi_plugins.conformance import scene_library
+    from mi_plugins.verify.conformance import scene_library
     from mi_plugins.integrators.ray_bundle import transfer
     if epsilon is not None:
         monkeypatch.setattr(transfer, "LINE_EPSILON", epsilon)
@@ -820,11 +822,11 @@ def test_a_layout_beyond_the_available_memory_is_refused(monkeypatch):
     kernel runs (1 M triangles with 64 chains needed 10.8 GB); above a quarter of it, a
     warning."""
     from mi_plugins.integrators.ray_bundle import integrator as module
-    from mi_plugins.integrators.ray_bundle import limits
+    from mi_plugins.integrators.ray_bundle import memory
     scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(rb(64))     # 12 triangles: 1536 lanes
-    per_chain = limits.chain_bytes(24, 16)
+    per_chain = memory.chain_bytes(24, 16)
     monkeypatch.setattr(module, "available_memory", lambda: 10 * per_chain)
-    fit = (10 * per_chain - 12 * limits.BYTES_PER_PATCH) // per_chain
+    fit = (10 * per_chain - 12 * memory.BYTES_PER_PATCH) // per_chain
     with pytest.raises(MemoryError, match=r"ray_bundle: chains=64 x 24 patch sides \(12 patches\) x 1 order\(s\) = "
                                           r"0.00154 M lanes and 0.0164 M lines need about [0-9.]+ GB per iteration, "
                                           r"more than the [0-9.]+ GB available; valid range here: chains <= %d" % fit):
@@ -841,7 +843,7 @@ def test_mis_weight_of_an_infinite_light_pdf_is_zero_not_nan():
     weight (found as 15 NaN pixels in 16 renders of `ray_bundle+first_shot` inside
     Bekaert's analytic sphere); the power heuristic then gives 0, as Mitsuba's `path`
     does, never inf / inf."""
-    from mi_plugins.sampling import _power_heuristic
+    from mi_plugins.light.direct import _power_heuristic
     w = np.array(_power_heuristic(mi.Float([float("inf"), 1.0, 0.0, 2.0]), mi.Float([0.3, float("inf"), 1.0, 2.0])))
     assert np.array_equal(w, [0.0, 0.0, 0.0, 0.5])
 
@@ -871,7 +873,7 @@ def test_bsdf_over_cosine_divides_by_the_geometric_cosine():
 
 def _stage_cell(key, cfg, runs, seed, resolution=8):
     """Image means (runs renders) of a coverage row's scene with the ray_bundle dict ``cfg``."""
-    from mi_plugins.coverage import matrix
+    from mi_plugins.verify.coverage import matrix
     scene = mi.load_dict(matrix.rows()[key].build(resolution))
     integ = mi.load_dict(cfg)
     return np.array([np.array(mi.render(scene, integrator=integ, spp=1, seed=budget.seed(seed + k))).mean()
@@ -894,7 +896,7 @@ def test_lamp_facing_a_ceiling_1cm_above(monkeypatch):
     brief's +92 %; the matrix's patch size 0.6). The direct light is now evaluated where
     the line leaves (point sources): measured +8 % +- 5.5 % (16 runs); the bound is z 4.5
     on the combined SE plus 5 % of patch bias. (ray_bundle refuses this scene, a lamp
-    facing a surface closer than half its patches, ``mi_plugins.gaps``: the light that
+    facing a surface closer than half its patches, ``mi_plugins.patches.gaps``: the light that
     bounces in the gap leaves it as patch averages; the point sources are tested with
     the refusal off.)"""
     monkeypatch.setattr(gaps, "refuse_trapped_lights", lambda *a: None)
@@ -918,7 +920,7 @@ def test_alpha_is_the_cameras_coverage():
     """rgba film: the alpha channel is the share of each pixel's camera samples that hit a
     surface, as path makes it (the stage is open above: the top rows see nothing); it was
     1 everywhere."""
-    from mi_plugins.coverage import matrix
+    from mi_plugins.verify.coverage import matrix
     d = matrix.rows()["format:rgba"].build(8)
     scene = mi.load_dict(d)
     ours = np.array(mi.render(scene, integrator=mi.load_dict(dict(CEILING_CFG, chains=8)), spp=1, seed=1))
@@ -946,9 +948,9 @@ def test_a_patch_table_beyond_the_memory_is_refused_before_it_is_built(monkeypat
     """A tiny patch_size: the patch count is predicted from the meshes before the table is
     built; beyond the available memory a clear error."""
     from mi_plugins.integrators.ray_bundle import integrator as module
-    from mi_plugins.integrators.ray_bundle import limits
+    from mi_plugins.integrators.ray_bundle import memory
     scene = analytic.furnace(0.5, 0.5, "box", resolution=4).scene(dict(rb(8), patch_size=0.01, subdivide=True))
-    assert limits.predicted_patches(scene, 0.01, True) == 12 * 64 * 64        # MAX_SPLIT per triangle
+    assert memory.predicted_patches(scene, 0.01, True) == 12 * 64 * 64        # MAX_SPLIT per triangle
     monkeypatch.setattr(module, "available_memory", lambda: 1_000_000)
     with pytest.raises(MemoryError, match=r"divides into 49152 patch sides, whose table needs about 0.03 GB"):
         scene.integrator().render(scene, 0, seed=0, spp=1)
@@ -959,10 +961,10 @@ def test_camera_passes_split_into_groups_that_fit(monkeypatch):
     quarter of the memory) the chains are split into groups, one pass each: the image
     stays exact (furnace), with 16 chains in groups of 2 here."""
     from mi_plugins.integrators.ray_bundle import integrator as module
-    from mi_plugins.integrators.ray_bundle import limits
-    per_group = 2 * 8 * 8 * limits.BYTES_PER_CAMERA_SAMPLE
+    from mi_plugins.integrators.ray_bundle import memory
+    per_group = 2 * 8 * 8 * memory.BYTES_PER_CAMERA_SAMPLE
     monkeypatch.setattr(module, "available_memory", lambda: 4 * per_group + 1)
-    monkeypatch.setattr(limits, "check", lambda *a, **k: 0)        # the chains themselves "fit"
+    monkeypatch.setattr(memory, "check", lambda *a, **k: 0)        # the chains themselves "fit"
     case = analytic.furnace(0.5, 0.5, "box", resolution=8)
     scene = case.scene(rb(16, first_shot=True, average_diffuse=True))
     mi.render(scene, spp=1, seed=1)
@@ -1085,7 +1087,7 @@ def test_a_burn_in_beyond_max_iterations_is_refused_not_averaged():
     with the default limit the same room renders and matches its exact radiance."""
     case = analytic.cases()["constant_lightsource_sierpinski"](resolution=4)
     scene = case.scene({"type": "ray_bundle", "max_iterations": 24})
-    with pytest.raises(support.NotConverged, match=r"^ray_bundle: not converged within max_iterations=24: after a "
+    with pytest.raises(errors.NotConverged, match=r"^ray_bundle: not converged within max_iterations=24: after a "
                                                    r"burn-in of 8 iterations .* it needs about (\d+) iterations") \
             as info:
         mi.render(scene, spp=1, seed=budget.seed(40))
@@ -1097,9 +1099,9 @@ def test_the_default_patch_size_sees_merged_meshes():
     and that scene.bbox() leaves out: the open many-emitter scene's two 80 x 80 planes
     vanished from it, the default patch size came out 7x too small and the planes split
     into 16384 patches (the table 16731). The scene's bounds now come from its shapes."""
-    from mi_plugins.coverage import rows
-    from mi_plugins.integrators.ray_bundle.limits import predicted_patches
-    from mi_plugins.meshtable import scene_bounds
+    from mi_plugins.verify.coverage import rows
+    from mi_plugins.integrators.ray_bundle.memory import predicted_patches
+    from mi_plugins.base.queries import scene_bounds
     scene = mi.load_dict(rows.open_many_emitters(8))
     lo, hi = scene_bounds(scene)
     assert np.allclose(lo, -40) and np.allclose(hi, 40), (lo, hi)

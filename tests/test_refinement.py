@@ -1,4 +1,4 @@
-"""Adaptive subdivision (``mi_plugins.refinement``, ``qmc_lighttrace``'s ``refine``): split
+"""Adaptive subdivision (``mi_plugins.patches.refinement``, ``qmc_lighttrace``'s ``refine``): split
 patches partition their parents, lookups find the children, the splits follow the
 variation of the light (a shadow's boundary) and nothing splits in uniform light, and
 constant radiance stays exact."""
@@ -9,8 +9,9 @@ import pytest
 
 import budget
 import mi_plugins
-from mi_plugins import analytic, refinement
-from mi_plugins.meshtable import MeshTable
+from mi_plugins.verify import analytic
+from mi_plugins.patches import refinement
+from mi_plugins.patches.meshtable import MeshTable
 
 T = mi.ScalarTransform4f
 SHAPES = {
@@ -188,7 +189,7 @@ def test_a_refined_solution_saves_and_loads(tmp_path):
     solution = mi_plugins.solve(scene, {"type": "qmc_lighttrace", "refine": True, "samples": 400000},
                                 seed=budget.seed(31))
     assert solution.meta["refinements"]
-    again = mi_plugins.solution.Solution.load(solution.save(str(tmp_path / "s.npz")), _shadow_scene())
+    again = mi_plugins.solution.solution.Solution.load(solution.save(str(tmp_path / "s.npz")), _shadow_scene())
     # per shape: a scene loaded again may list its shapes in another order (the load
     # follows the scene's order)
     assert again.patches == solution.patches
@@ -202,7 +203,7 @@ def test_a_refined_solution_saves_and_loads(tmp_path):
     images = []
     for where in (scene, other):
         integ = mi.load_dict({"type": "qmc_lighttrace", "display": "patches", "refine": True, "samples": 400000})
-        integ.use_solution(mi_plugins.solution.Solution.load(str(tmp_path / "s.npz"), where))
+        integ.use_solution(mi_plugins.solution.solution.Solution.load(str(tmp_path / "s.npz"), where))
         images.append(np.array(mi.render(where, integrator=integ, spp=4, seed=budget.seed(31))))
         assert integ.solve_count == 0
     np.testing.assert_allclose(images[1], images[0], rtol=1e-5, atol=1e-6)

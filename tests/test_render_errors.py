@@ -1,12 +1,10 @@
-"""mi.render raises the package's own errors as they are (mi_plugins.render_errors): a
+"""mi.render raises the package's own errors as they are (mi_plugins.base.render_errors): a
 refusal's first line names the plugin, the feature and what to use instead, not
 drjit.custom's generic wrapper; the errors of other integrators pass unchanged."""
 import mitsuba as mi
 import pytest
 
-from mi_plugins import render_errors, support
-
-
+from mi_plugins.base import render_errors, errors
 def _box(bsdf):
     d = mi.cornell_box()
     d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 8
@@ -21,7 +19,7 @@ def test_refusal_is_the_top_level_error(bsdf, lobe):
     scene = _box(bsdf)
     for call in (lambda: mi.render(scene, integrator=mi.load_dict({"type": "ray_bundle"}), spp=1),
                  lambda: mi.render(scene, None, 0, mi.load_dict({"type": "ray_bundle"}), spp=1)):
-        with pytest.raises(support.Unsupported) as info:
+        with pytest.raises(errors.Unsupported) as info:
             call()
         first = str(info.value).splitlines()[0]
         assert first.startswith("ray_bundle: the BSDF '%s'" % bsdf["type"]) and lobe in first, first
@@ -33,7 +31,7 @@ def test_scene_integrator_errors_are_unwrapped_too():
     d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 8
     d["small-box"]["bsdf"] = {"type": "conductor"}
     d["integrator"] = {"type": "ray_bundle"}
-    with pytest.raises(support.Unsupported, match="^ray_bundle: the BSDF 'conductor'"):
+    with pytest.raises(errors.Unsupported, match="^ray_bundle: the BSDF 'conductor'"):
         mi.render(mi.load_dict(d), spp=1)
 
 

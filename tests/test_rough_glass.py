@@ -12,10 +12,9 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.analytic import stats
-from mi_plugins.conformance import runner
-from mi_plugins.integrators import qmc_particles
-
+from mi_plugins.verify.analytic import stats
+from mi_plugins.verify.conformance import runner
+from mi_plugins.integrators.qmc_lighttrace import particles
 T = mi.ScalarTransform4f
 GLASS = {"type": "roughdielectric", "alpha": 0.5, "int_ior": 1.5}
 
@@ -94,7 +93,7 @@ def test_particle_bounce_factor_is_mitsubas_sample_weight():
             u = [mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)]
             bs, weight = bsdf.sample(mi.BSDFContext(mi.TransportMode.Importance), si, u[0], mi.Point2f(u[1], u[2]),
                                      si.is_valid())
-            factor = qmc_particles.adjoint_weight(bsdf, mi.BSDFContext(mi.TransportMode.Radiance), si, bs, weight,
+            factor = particles.adjoint_weight(bsdf, mi.BSDFContext(mi.TransportMode.Radiance), si, bs, weight,
                                                   si.is_valid())
             got, want = np.array(mi.Color3f(factor).x), np.array(mi.Color3f(weight).x)
             assert np.array(si.is_valid()).all()

@@ -6,7 +6,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import analytic, qmc
+from mi_plugins.verify import analytic
+from mi_plugins.base import sequences
 from mi_plugins.samplers.sequence_sampler import SequenceSampler
 
 import budget
@@ -194,7 +195,7 @@ def test_passes_give_every_pixel_the_sample_indices_0_to_n_minus_1(sampler, k):
     passes every pixel gets exactly the points 0 .. N-1 (dimensions 0 and 1 after every
     advance(), which resets the dimension)."""
     got = _passes(sampler, 8, k, pixels=5, scramble=False)
-    assert np.array_equal(got, np.broadcast_to(qmc.points(sampler, 8, 2).astype(np.float32), got.shape))
+    assert np.array_equal(got, np.broadcast_to(sequences.points(sampler, 8, 2).astype(np.float32), got.shape))
 
 
 @pytest.mark.parametrize("sampler", SAMPLERS)
@@ -210,7 +211,7 @@ def test_scrambled_passes_give_the_points_of_one_pass(sampler):
     s = mi.load_dict({"type": sampler, "sample_count": 8})
     s.seed(budget.seed(7), 6 * 8)           # no set_samples_per_wavefront: one pass of sample_count
     lane = dr.arange(mi.UInt32, 6 * 8)
-    x = qmc.sample(sampler, lane % 8, 1, scramble=True, seed=qmc.hash32(lane // 8, s.base_seed))
+    x = sequences.sample(sampler, lane % 8, 1, scramble=True, seed=sequences.hash32(lane // 8, s.base_seed))
     assert np.array_equal(np.array(x), one[:, :, 1].ravel())
     s.next_1d()
     assert np.array_equal(np.array(s.next_1d()), one[:, :, 1].ravel())

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.params import ParameterError
+from mi_plugins.base.params import ParameterError
 
 D, ND, DISC = mi.ParamFlags.Differentiable, mi.ParamFlags.NonDifferentiable, mi.ParamFlags.Discontinuous
 SPP = 4

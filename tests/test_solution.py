@@ -13,9 +13,10 @@ import pytest
 
 import budget
 import mi_plugins
-from mi_plugins import analytic, patchfield, views
-from mi_plugins.meshtable import MeshTable
-from mi_plugins.solution import Solution, SolutionMismatch
+from mi_plugins.verify import analytic
+from mi_plugins.solution import patchfield, views
+from mi_plugins.patches.meshtable import MeshTable
+from mi_plugins.solution.solution import Solution, SolutionMismatch
 
 T = mi.ScalarTransform4f
 DISPLAYS = ("smooth", "patches", "baked")
@@ -278,7 +279,7 @@ def _pixel_rays(scene, size=8):
 def test_exported_meshes_show_the_baked_field_in_mitsuba(tmp_path):
     """The PLY meshes' vertex colours, read back by Mitsuba's ``mesh_attribute`` texture, are
     the baked display's field: equal at the same surface points (one ray per pixel)."""
-    from mi_plugins.integrators import display
+    from mi_plugins.solution import display
     scene = _floor_scene("mesh")
     integ = mi.load_dict({"type": "qmc_lighttrace", "samples": 20000, "display": "baked"})
     solution = integ.solve(scene, budget.seed(8))

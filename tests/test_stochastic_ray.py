@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 import mitsuba as mi
-from mi_plugins import analytic, support
-from mi_plugins.analytic import harness, stats
+from mi_plugins.verify import analytic
+from mi_plugins.base import errors
+from mi_plugins.verify.analytic import harness, stats
 
 import budget
 from conftest import furnace_rmse, scalar_variant_refusal
@@ -118,7 +119,7 @@ def test_a_burn_in_beyond_max_iterations_is_refused_not_averaged():
     steps needed, instead of returning an image about 10 % too dark. The test of the test:
     at the default limit (4096) the same furnace renders and matches its exact radiance."""
     case = analytic.furnace(0.95, 0.05, "box", resolution=4)
-    with pytest.raises(support.NotConverged, match=r"^stochastic_ray: not converged within max_iterations=64: the "
+    with pytest.raises(errors.NotConverged, match=r"^stochastic_ray: not converged within max_iterations=64: the "
                                                    r"scene's effective albedo is 0\.9\d*: a burn-in of (\d+) steps"):
         mi.render(case.scene(integrator(iterations=8, max_iterations=64)), spp=1, seed=budget.seed(3))
     means = [float(np.mean(mi.render(case.scene(integrator(iterations=8)), spp=4, seed=budget.seed(3 + k))))
@@ -279,7 +280,7 @@ def test_textured_area_light_on_a_mesh_carries_its_power():
     the package's light rays sample the shape uniformly. Direct light (max_depth 2) on
     an open floor against Mitsuba's ``direct`` with BSDF sampling only, which never
     samples the emitter. Test of the test: the emitter-sampled ``direct`` is 9 % low."""
-    from mi_plugins.coverage import files, rows
+    from mi_plugins.verify.coverage import files, rows
     sphere = files.obj_file(rows._icosphere(), "coverage_sphere")
     scene = mi.load_dict({
         "type": "scene",

@@ -1,11 +1,11 @@
-"""Textured area lights, where Mitsuba 3.9.1's own light sampling is wrong (docs/findings.md):
+"""Textured area sources, where Mitsuba 3.9.1's own light sampling is wrong (docs/findings.md):
 a checkerboard or bitmap radiance on a ``flip_normals`` rectangle (its light samples
 almost all fail), on a mesh with uv seams (they lose a third of the light), and mixed
 with other emitters (its ``sample_ray`` raises for a checkerboard). The package samples these
-lights uniformly on their shape (``mi_plugins.lights``); every image here is checked
+lights uniformly on their shape (``mi_plugins.light.sources``); every image here is checked
 against an estimate that never samples the light: Mitsuba's ``direct`` with BSDF
 samples only, or ``path`` on the same light unflipped with its texture mirrored (the
-same radiance everywhere, :func:`mi_plugins.coverage.rows.textured_rectangle`). Tests
+same radiance everywhere, :func:`mi_plugins.verify.coverage.rows.textured_rectangle`). Tests
 of the tests: Mitsuba's ``path`` fails the same checks.
 """
 import drjit as dr
@@ -13,9 +13,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import lights
-from mi_plugins.analytic import harness, stats
-from mi_plugins.coverage import files, rows
+from mi_plugins.light import sources
+from mi_plugins.verify.analytic import harness, stats
+from mi_plugins.verify.coverage import files, rows
 
 import budget
 
@@ -87,8 +87,8 @@ def bsdf_only():
 def test_light_samples_and_their_pdf_are_consistent():
     """From points of the floor of the mixed scene (a flipped checkerboard light, a point
     and a plain area light, a bitmap icosphere light with uv seams): every sample of
-    ``lights.sample_emitter_direction`` that reaches its light is found again by
-    ``lights.pdf_emitter_direction`` with the same pdf, and its weight is the radiance
+    ``sources.sample_emitter_direction`` that reaches its light is found again by
+    ``sources.pdf_emitter_direction`` with the same pdf, and its weight is the radiance
     there over that pdf; samples of the other emitters are Mitsuba's own. (On main:
     no such functions; Mitsuba's own pdf of the icosphere's samples is off by up to
     a factor of 285, and its flipped rectangle's samples fail.)"""
@@ -102,19 +102,19 @@ def test_light_samples_and_their_pdf_are_consistent():
     ray = mi.Ray3f(mi.Point3f(rng.uniform(-1.5, 1.5, n), 0.5, rng.uniform(-1.5, 1.5, n)), mi.Vector3f(0, -1, 0))
     si = scene.ray_intersect(ray)
     sample = mi.Point2f(rng.random(n), rng.random(n))
-    ds, weight = lights.sample_emitter_direction(scene, si, sample, si.is_valid(), test_visibility=False)
+    ds, weight = sources.sample_emitter_direction(scene, si, sample, si.is_valid(), test_visibility=False)
     hit = scene.ray_intersect(si.spawn_ray(ds.d), ds.pdf > 0)
     # found: the sampled point itself (same triangle, not at grazing angles, where the
     # hit's float error of about 2e-4 shows)
     found = ((ds.pdf > 0) & ~ds.delta & (hit.emitter(scene) == ds.emitter) & (dr.norm(hit.p - ds.p) < 2e-3)
              & (dr.dot(hit.n, ds.n) > 0.9999) & (-dr.dot(ds.d, ds.n) > 0.1))
-    pdf = lights.pdf_emitter_direction(scene, si, mi.DirectionSample3f(scene, hit, si), found)
+    pdf = sources.pdf_emitter_direction(scene, si, mi.DirectionSample3f(scene, hit, si), found)
     # the radiance at the sampled point toward si (found along the light's normal: precise)
     at = scene.ray_intersect(mi.Ray3f(ds.p + ds.n * 1e-3, -ds.n), found)
     at.wi = at.to_local(-ds.d)
     radiance = mi.Color3f(at.emitter(scene).eval(at, found))
     found, pdf, ds_pdf = (np.array(v) for v in (found, pdf, ds.pdf))
-    own = lights.textured_area_lights(scene)
+    own = sources.textured_area_lights(scene)
     assert len(own) == 2 and len(scene.emitters()) == 4
     textured = np.array((ds.emitter == mi.EmitterPtr(own[0][1])) | (ds.emitter == mi.EmitterPtr(own[1][1])))
     found &= textured
@@ -249,7 +249,7 @@ RIGHT = {"rectangle_flipped": False, "rectangle": True, "icosphere": False, "cub
 @pytest.mark.parametrize("kind", list(RIGHT))
 def test_where_mitsuba_samples_a_textured_light_right(kind):
     scene = mi.load_dict(rows.stage(8, emitter=_light(kind)))
-    assert lights.mitsuba_samples_right(scene.emitters()[0]) == RIGHT[kind]
+    assert sources.mitsuba_samples_right(scene.emitters()[0]) == RIGHT[kind]
 
 
 @pytest.mark.parametrize("integrator", [{"type": "stochastic_ray", "iterations": 2, "burn_in": 1},
@@ -259,7 +259,7 @@ def test_a_wrongly_sampled_light_behind_a_handoff_is_refused(integrator):
     """Light the camera sees through delta lobes (here plastic's specular layer) is
     estimated by Mitsuba's volpath, wrong with such a light: refused, naming the light;
     the same scene with the light unflipped renders."""
-    from mi_plugins.support import Unsupported
+    from mi_plugins.base.errors import Unsupported
     plastic = {"type": "plastic", "diffuse_reflectance": rows.rgb(0.4)}
     flipped = mi.load_dict(dict(rows.stage(8, subject_bsdf=plastic, emitter=_light("rectangle_flipped")),
                                 integrator=integrator))
@@ -287,7 +287,7 @@ def test_light_rays_of_a_textured_light_leave_its_shape(kind):
     n = 1 << 16
     rng = mi.PCG32(n)
     u = lambda: rng.next_float32()
-    ray, power = lights.sample_light_rays(scene, u(), mi.Point2f(u(), u()), mi.Point2f(u(), u()))
+    ray, power = sources.sample_light_rays(scene, u(), mi.Point2f(u(), u()), mi.Point2f(u(), u()))
     assert float(dr.mean(mi.Float(dr.any(power != 0)))[0]) > 0.99
     assert int(dr.count(scene.ray_intersect(ray).is_valid())[0]) == 0
     if kind == "sphere":

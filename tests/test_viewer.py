@@ -1,4 +1,4 @@
-"""The solution viewer (``mi_plugins.viewer``): its camera against Mitsuba's sensors, its
+"""The solution viewer (``mi_plugins.solution.viewer``): its camera against Mitsuba's sensors, its
 page in a real headless Chromium against Mitsuba's ``baked`` display of the same camera,
 its refusals and ``mi-plugins view``.
 
@@ -20,10 +20,10 @@ import pytest
 import budget
 import mi_plugins
 from browser import Browser, find_browser
-from mi_plugins import viewer
-from mi_plugins.solution import SolutionMismatch
-from mi_plugins.solution_export import baked_shapes
-from mi_plugins.viewer_camera import project, sensor_camera
+from mi_plugins.solution import viewer
+from mi_plugins.solution.solution import SolutionMismatch
+from mi_plugins.solution.export import baked_shapes
+from mi_plugins.solution.viewer_camera import project, sensor_camera
 
 T = mi.ScalarTransform4f
 MEAN_TOLERANCE, MIN_CORRELATION = 0.02, 0.9
@@ -277,7 +277,7 @@ def test_bad_input_is_refused_by_name(cornell, tmp_path):
 
 
 def test_mi_plugins_view_writes_the_page_of_a_saved_solution(tmp_path, capsys):
-    from mi_plugins import cli
+    from mi_plugins.app import cli
     xml = tmp_path / "floor.xml"
     xml.write_text('<scene version="3.0.0"><integrator type="qmc_lighttrace"><integer name="samples" value="2000"/>'
                    '</integrator><sensor type="perspective"><float name="fov" value="45"/><transform name="to_world">'

@@ -1,4 +1,4 @@
-"""The demo's walkthrough: the camera path, the cached per-frame references, path and one
+"""The demo's walkthrough: the camera path, the cached per-frame cached_references, path and one
 solve at equal time, the animation and the strip (a tiny budget: 16 px, 6 frames)."""
 import os
 
@@ -6,7 +6,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_plugins import animation, demo, references, timesplit, walkthrough
+from mi_plugins.app import animation, demo, cached_references, timesplit, walkthrough
 
 pytestmark = pytest.mark.skipif(not mi.variant(), reason="needs a Mitsuba variant")
 
@@ -45,7 +45,7 @@ def test_every_frame_has_its_error_and_each_solution_solved_once(walk):
 
 
 def test_the_errors_are_per_frame(walk):
-    """The test of the test: path's frames shown in reverse order miss their references."""
+    """The test of the test: path's frames shown in reverse order miss their cached_references."""
     result, _, _ = walk
     path = result.runs["path"]
     wrong = walkthrough.Run(path.images[::-1], result.refs, path.seconds, "reversed")
@@ -69,10 +69,10 @@ def test_a_solution_reaches_path_only_where_every_frame_does(walk):
 def test_the_references_are_read_back_from_the_cache(walk, monkeypatch):
     result, _, cache = walk
     monkeypatch.setattr(mi, "render", lambda *a, **k: pytest.fail("the cached reference was rendered again"))
-    again = references.path_references(walkthrough.scene_dict(16), walkthrough.REFERENCE_FACTOR * 4,
+    again = cached_references.path_references(walkthrough.scene_dict(16), walkthrough.REFERENCE_FACTOR * 4,
                                        result.transforms, tag="walk", cache=cache)
     assert all(np.array_equal(a.image, b.image) for a, b in zip(again, result.refs))
-    other = references.cache_file("walk", "another key", cache=cache)
+    other = cached_references.cache_file("walk", "another key", cache=cache)
     assert not os.path.exists(other)
 
 

@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.integrators.core import SPLAT_MODE
+from mi_plugins.render.frame import SPLAT_MODE
 from mi_plugins.integrators.ray_bundle.direct import purely_diffuse
 
 

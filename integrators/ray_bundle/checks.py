@@ -1,4 +1,4 @@
-"""What ``ray_bundle`` refuses, checked before any work (:class:`mi_plugins.support.Unsupported`).
+"""What ``ray_bundle`` refuses, checked before any work (:class:`mi_plugins.base.errors.Unsupported`).
 
 The bundles carry radiance from patch to patch along random global directions, and a
 patch reflects what arrives at it through its BSDF's *smooth* lobes (``bsdf.eval``):
@@ -19,13 +19,14 @@ mirror) render: the camera's visible point hands its delta lobes to Mitsuba's ``
 and the patches reflect the direct light through them (``first_shot``'s BSDF sample);
 with a textured area light that Mitsuba samples wrongly (a ``flip_normals`` rectangle,
 a mesh whose uv map does not tile the unit square) they are refused
-(:func:`mi_plugins.support.refuse_textured_lights_behind_handoff`).
+(:func:`mi_plugins.base.errors.refuse_textured_lights_behind_handoff`).
 """
 import warnings
 
 import mitsuba as mi
 
-from mi_plugins import support
+from mi_plugins.base import errors, queries
+from mi_plugins.render import checks
 
 F = mi.BSDFFlags
 INSTEAD = "render this scene with Mitsuba's 'path' (or the package's 'stochastic_ray')"
@@ -36,31 +37,31 @@ def _has(bsdf, flag):
 
 
 def _subject(bsdf, shape):
-    return "the BSDF '%s' of shape '%s'" % (support.plugin_name(bsdf), shape.id())
+    return "the BSDF '%s' of shape '%s'" % (queries.plugin_name(bsdf), shape.id())
 
 
 def check_scene(plugin, scene, delta_surfaces="refuse"):
     """Raise :class:`Unsupported` for the first shape the bundles cannot carry light
     from or across (see the module docstring); warn for the delta surfaces accepted
     with ``delta_surfaces='camera_only'``."""
-    support.refuse_shapes_without_patches(plugin, scene)
-    support.refuse_one_direction_emitters(plugin, scene)
+    checks.refuse_shapes_without_patches(plugin, scene)
+    checks.refuse_one_direction_emitters(plugin, scene)
     delta = []
-    for shape, bsdf in support.bsdfs(scene):
+    for shape, bsdf in queries.bsdfs(scene):
         if _has(bsdf, F.Null):
-            raise support.Unsupported(
-                plugin, support.plugin_name(bsdf), _subject(bsdf, shape),
+            raise errors.Unsupported(
+                plugin, queries.plugin_name(bsdf), _subject(bsdf, shape),
                 "its null lobe lets light pass through the surface, but the bundles' lines stop at every surface "
                 "they meet and the direct light's shadow rays are blocked by it", INSTEAD)
         if _has(bsdf, F.DiffuseTransmission | F.GlossyTransmission):
-            raise support.Unsupported(
-                plugin, support.plugin_name(bsdf), _subject(bsdf, shape),
+            raise errors.Unsupported(
+                plugin, queries.plugin_name(bsdf), _subject(bsdf, shape),
                 "it transmits light through the surface, and the bundles' patches receive and reflect on one side "
                 "only (light transmitted to the other side would be lost)", INSTEAD)
         if _has(bsdf, F.Delta) and not _has(bsdf, F.Smooth):
             delta.append((shape, bsdf))
-    if any(_has(bsdf, F.Delta) for _, bsdf in support.bsdfs(scene)):
-        support.refuse_textured_lights_behind_handoff(plugin, scene, "the camera through delta lobes")
+    if any(_has(bsdf, F.Delta) for _, bsdf in queries.bsdfs(scene)):
+        checks.refuse_textured_lights_behind_handoff(plugin, scene, "the camera through delta lobes")
     if not delta:
         return
     shape, bsdf = delta[0]
@@ -68,7 +69,7 @@ def check_scene(plugin, scene, delta_surfaces="refuse"):
            "directions never meet: the light it passes on between surfaces would be missing (the camera still "
            "sees through it)")
     if delta_surfaces == "refuse":
-        raise support.Unsupported(plugin, support.plugin_name(bsdf), _subject(bsdf, shape), why,
+        raise errors.Unsupported(plugin, queries.plugin_name(bsdf), _subject(bsdf, shape), why,
                                   INSTEAD + "; or set delta_surfaces='camera_only' to accept that bias")
     warnings.warn("%s: shape(s) %s have purely delta (mirror/glass) BSDFs: %s. The image misses that "
                   "light (delta_surfaces='camera_only')." % (plugin, ", ".join("'%s'" % s.id() for s, _ in delta),

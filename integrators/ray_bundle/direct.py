@@ -17,8 +17,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
-from mi_plugins.sampling import direct_light, needs_bsdf_sample
+from mi_plugins.base import seeds
+from mi_plugins.light.direct import direct_light, needs_bsdf_sample
 
 
 def diffuse_only(shape):

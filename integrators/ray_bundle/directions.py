@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import qmc
+from mi_plugins.base import sequences
 
 SEQUENCES = ("independent", "halton", "hammersley", "pi")
 
@@ -76,9 +76,9 @@ class DirectionStream:
         index = dr.arange(mi.UInt32, n * 2) // 2 + first
         dim = dr.arange(mi.UInt32, n * 2) % 2
         if self.kind == "halton":
-            pts = np.array(qmc.sample("halton", index + 1, dim, dims=2), dtype=np.float64).reshape(n, 2)
+            pts = np.array(sequences.sample("halton", index + 1, dim, dims=2), dtype=np.float64).reshape(n, 2)
         else:
-            pts = np.array(qmc.sample("hammersley", index, dim, dims=2, n=self.count), dtype=np.float64).reshape(n, 2)
+            pts = np.array(sequences.sample("hammersley", index, dim, dims=2, n=self.count), dtype=np.float64).reshape(n, 2)
             pts[:, 0] += 0.5 / self.count          # centred: (k + 1/2) / count
         return np.mod(pts[:, None, :] + self.shift[None], 1.0)
 

@@ -14,8 +14,8 @@ patches) or :class:`AveragedSources` (the per-triangle averages of ``average_dif
 plus the source term of the gathered point). With ``first_shot`` the visible point's
 direct light through its smooth lobes is added by next-event estimation, and the light
 reaching it through its delta lobes (the specular layer of ``plastic``) by Mitsuba's
-``path`` (:class:`~mi_plugins.integrators.handoff.Handoff`); the emission seen along the
-camera path comes from :func:`~mi_plugins.integrators.camera.specular_chain`.
+``path`` (:class:`~mi_plugins.render.handoff.Handoff`); the emission seen along the
+camera path comes from :func:`~mi_plugins.render.camera.specular_chain`.
 
 Depth: with a finite ``max_depth`` every lane takes the orders of the stored radiance
 that its path may still reach: order k read at a visible point after ``used`` path
@@ -25,10 +25,10 @@ the direct light reflected there), used + 1 + k without (order 0 is emission).
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins.integrators import display
-from mi_plugins.integrators.camera import specular_chain
-from mi_plugins.integrators.core import coverage
-from mi_plugins.integrators.handoff import Handoff
+from mi_plugins.solution import display
+from mi_plugins.render.camera import specular_chain
+from mi_plugins.render.frame import coverage
+from mi_plugins.render.handoff import Handoff
 from mi_plugins.integrators.ray_bundle.direct import direct_light_mis
 from mi_plugins.integrators.ray_bundle.transfer import bsdf_over_cosine
 

@@ -3,23 +3,27 @@
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import gaps, seeds
-from mi_plugins.integrators import display
-from mi_plugins.integrators.core import MAX_ITERATIONS, Frame
-from mi_plugins.integrators.solving import SolutionIntegrator, solution_meta
-from mi_plugins import refinement
+from mi_plugins.patches import gaps
+from mi_plugins.base import seeds
+from mi_plugins.solution import display
+from mi_plugins.render.core import MAX_ITERATIONS
+from mi_plugins.render.frame import Frame
+from mi_plugins.solution.integrator import SolutionIntegrator, solution_meta
+from mi_plugins.patches import refinement
 from mi_plugins.integrators.ray_bundle import checks, refine, split
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
 from mi_plugins.integrators.ray_bundle import frozen
-from mi_plugins.integrators.ray_bundle import limits
-from mi_plugins.integrators.ray_bundle.limits import available_memory
+from mi_plugins.integrators.ray_bundle import memory
+from mi_plugins.integrators.ray_bundle.memory import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
-from mi_plugins import darkness
-from mi_plugins.meshtable import cached_table, default_patch_size, patch_parameters, scene_bounds
-from mi_plugins.distributed_split import ChainGroups
-from mi_plugins.params import Params
-from mi_plugins.solution import Solution
+from mi_plugins.patches import darkness
+from mi_plugins.patches.build import cached_table, patch_parameters
+from mi_plugins.patches.tessellation import default_patch_size
+from mi_plugins.base.queries import scene_bounds
+from mi_plugins.render.phases import ChainGroups
+from mi_plugins.base.params import Params
+from mi_plugins.solution.solution import Solution
 
 #: the chains of the default (fewer where they would need over a quarter of the memory)
 DEFAULT_CHAINS = 64
@@ -60,7 +64,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     kind of iteration and camera pass is traced once and replayed (``dr.freeze``; a later
     render of the same scene and settings replays too). Memory: O(chains x (patches +
     resolution^2)), no per-pair storage; every size is checked before any work against
-    the available memory and documented maxima (``limits.py``: at most 2^20 iterations
+    the available memory and documented maxima (``memory.py``: at most 2^20 iterations
     per render, 2^31 lanes, lines and camera samples per pass; a camera pass takes as
     many chains as fit), with a clear error naming what fits.
 
@@ -171,7 +175,7 @@ class RayBundleIntegrator(SolutionIntegrator):
        - group mesh triangles much smaller than the patch size (longest edge below h / 2)
          into patches of about h by grid cell and normal direction (within about 45
          degrees), so that the patch count follows the surface area, not the triangle
-         count (``mi_plugins.mesh_parts``); false: one patch per small triangle
+         count (``mi_plugins.patches.mesh_parts``); false: one patch per small triangle
      * - dark_levels
        - int
        - 2
@@ -179,7 +183,7 @@ class RayBundleIntegrator(SolutionIntegrator):
          them, inside a closed object, past a floor or ceiling they run through) or that a
          surface standing on them cuts (a thin panel on a floor) this many times along the
          boundary, so that the solution's displays neither show the lit part darkened by
-         the dark one nor carry light past the panel (``mi_plugins.darkness``); 0: the patches as they are
+         the dark one nor carry light past the panel (``mi_plugins.patches.darkness``); 0: the patches as they are
      * - hide_emitters
        - bool
        - false
@@ -213,7 +217,7 @@ class RayBundleIntegrator(SolutionIntegrator):
          reflected at each pixel's visible point, renders solved anew); ``'smooth'``,
          ``'patches'``, ``'baked'``: from the view-independent solution (the irradiance
          every patch side receives from the bundles, averaged over chains and iterations:
-         ``mi_plugins.solution``), kept for every later render of the scene with the same
+         ``mi_plugins.solution.solution``), kept for every later render of the scene with the same
          seed, whatever the sensor or spp. ``'smooth'``: direct light by next-event
          estimation plus the solution interpolated from per-vertex values;
          ``'patches'``: the flat patch values; ``'baked'``: the interpolated patch
@@ -247,7 +251,7 @@ class RayBundleIntegrator(SolutionIntegrator):
          and a child differing from the patch by more than ``refine_threshold``: shadow
          boundaries, spot pools) split, the largest errors first, and the solve goes on on
          the refined patches from the pilot's state (a child's radiance its parent's;
-         ``mi_plugins.refinement``), 2 iterations of burn-in, then the averaged ones
+         ``mi_plugins.patches.refinement``), 2 iterations of burn-in, then the averaged ones
      * - refine_threshold
        - float
        - 0.1
@@ -289,19 +293,19 @@ class RayBundleIntegrator(SolutionIntegrator):
     environment emitter (``constant``, ``envmap``) lights the patches through the bundles
     (with ``first_shot`` by next-event estimation) and is seen by the camera; delta lights
     (``point``, ``spot``, ``directional``) need ``first_shot=true`` (an error says so).
-    **Refused before any work** (``mi_plugins.support.Unsupported``, naming the plugin,
+    **Refused before any work** (``mi_plugins.base.errors.Unsupported``, naming the plugin,
     the shape, why and what to use instead): participating media; BSDFs with a null lobe
     (``null``, ``mask``, ``thindielectric``, ``hair``, the polarizers), which the lines
     cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
     specular surfaces (see ``delta_surfaces``); a lamp facing a surface closer than half
     the patch size (a lamp turned up under a ceiling: the light trapped between them would
-    leave as patch averages, ``mi_plugins.gaps``). The delta lobe of a mixed BSDF (the
+    leave as patch averages, ``mi_plugins.patches.gaps``). The delta lobe of a mixed BSDF (the
     specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
     point (refused with a textured ``area`` light that Mitsuba samples wrongly: on a
     ``flip_normals`` rectangle, or a mesh whose uv map does not cover the unit square
     once), and reflects the direct light into the bundles (``first_shot``'s BSDF
     sample). Next-event estimation samples textured area lights uniformly on their shape
-    (``mi_plugins.lights``). The radiance carried by the bundles is constant per patch: where it varies
+    (``mi_plugins.light.sources``). The radiance carried by the bundles is constant per patch: where it varies
     within a patch the result is its patch average (exact in the furnace and
     constant-radiance cases, and on spheres, whose point-to-patch form factor is the same
     for every receiving point); a smaller ``patch_size`` (or a higher ``resolution``,
@@ -413,7 +417,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     def _guarded(self, run, undo, *args):
         """``run(*args)`` with frozen steps, and where a step cannot be recorded ``undo()``
         and again with plain steps. (Every caller is inside a render or a solve, which pause
-        the garbage collector, :mod:`mi_plugins.collection`: a Mitsuba object of an earlier
+        the garbage collector, :mod:`mi_plugins.base.collection`: a Mitsuba object of an earlier
         scene freed between two frozen steps would change the instance registry that the
         steps recorded.)"""
         try:
@@ -427,7 +431,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         """The patches of ``scene`` (checked against the memory first), with back sides;
         the dark splits of ``dark_record`` where one is given."""
         h = self.patch_size_for(scene)
-        check = lambda: limits.check_patches(limits.predicted_patches(scene, h, self.subdivide, self.cluster),
+        check = lambda: memory.check_patches(memory.predicted_patches(scene, h, self.subdivide, self.cluster),
                                              available_memory())
         table = cached_table(scene, self.plugin, h, back_sides=True, subdivide=self.subdivide, cluster=self.cluster,
                              before_build=check, dark_levels=self.dark_levels)

@@ -6,7 +6,7 @@ along +-d; weight / A_i times that is an unbiased estimate of its irradiance (th
 directions are uniform on the sphere). Taken with the shading cosine as Mitsuba's BSDFs
 weigh light (the factor |cos_sh| / |cos_geo| of a white Lambertian surface at a uniformly
 random point of the patch), it is what ``qmc_lighttrace`` stores: the solution's tables
-read the same way for both integrators (``mi_plugins.solution``). With ``first_shot``
+read the same way for both integrators (``mi_plugins.solution.solution``). With ``first_shot``
 the bundles carry the light of paths of two or more segments (the direct light is added
 by the display); without it, the emission too. Orders (a finite depth) are kept apart.
 
@@ -20,8 +20,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.integrators.core import SPLAT_MODE
-from mi_plugins.integrators.patch_light import white
+from mi_plugins.render.frame import SPLAT_MODE
+from mi_plugins.solution.patch_light import white
 from mi_plugins.integrators.ray_bundle.transfer import bsdf_over_cosine
 
 #: groups of chains whose spread is the solution's error (fewer when there are fewer chains)

@@ -2,7 +2,7 @@
 given patches measures what the lines bring to every child of every patch side
 (``transfer.ChildStats``; with ``first_shot`` the direct light too, by next-event
 estimation at random points of the patches); the patches inside which it varies split
-(``mi_plugins.refinement.choose``), and the solve goes on on the refined patches from the
+(``mi_plugins.patches.refinement.choose``), and the solve goes on on the refined patches from the
 pilot's state: every chain's radiance of a child is its parent's, and so is the shared
 direct light's running mean. The refined part has its own burn-in (:data:`BURN_IN`: the
 children's radiance is close to converged) and its averaged iterations make the solution.
@@ -12,8 +12,9 @@ import numpy as np
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import refinement, seeds
-from mi_plugins.integrators import patch_light
+from mi_plugins.patches import refinement
+from mi_plugins.base import seeds
+from mi_plugins.solution import patch_light
 from mi_plugins.integrators.ray_bundle.transfer import ChainState
 
 #: burn-in of the refined part (its chains start from the pilot's, nearly converged)
@@ -68,5 +69,5 @@ def choose(integ, run, scene, seed):
 
 
 def refinement_budget(table):
-    from mi_plugins.integrators.qmc_phase import REFINE_BUDGET
+    from mi_plugins.integrators.qmc_lighttrace.phase import REFINE_BUDGET
     return REFINE_BUDGET * table.front_count

@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins import seeds, support
-from mi_plugins.integrators.ray_bundle import convergence, limits
+from mi_plugins.base import seeds, errors
+from mi_plugins.integrators.ray_bundle import power_trace, memory
+from mi_plugins.render import burn_in
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
-from mi_plugins.integrators.display import edge_pixels
+from mi_plugins.solution.display import edge_pixels
 from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS, AveragedSources, ChainSources
 from mi_plugins.integrators.ray_bundle.frozen import FrozenStep, fingerprint, freezable, jit_leaves, own_arrays
@@ -68,17 +69,17 @@ class Run:
         self.solve_only = solve_only
         self.after = None            # after(run, iterations so far): a preview, called after every step
         self.gather_only = split is not None and split.mode == "gather"
-        limits.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
+        memory.check_sizes(integ.iterations, spp, integ.resolution, integ.max_depth)
         sides, orders = 2 if integ.bidirectional else 1, integ.orders()
         per_chain = 0 if solve_only else frame.sample_pixels()
         chains = chains or (split.chains if split is not None and split.chains else
-                  integ.chains or limits.default_chains(default_chains, sides * table.count, integ.resolution,
+                  integ.chains or memory.default_chains(default_chains, sides * table.count, integ.resolution,
                                                         available, orders))
         self.layout = layout = ChainLayout(table, chains, sides, orders)
-        self.group = chains if solve_only else limits.sampler_group(frame.sensor.sampler(), chains,
-                                                                    limits.camera_group(chains, per_chain, available))
+        self.group = chains if solve_only else memory.sampler_group(frame.sensor.sampler(), chains,
+                                                                    memory.camera_group(chains, per_chain, available))
         if not self.gather_only:
-            limits.check(layout, integ.resolution, per_chain, self.group, available)
+            memory.check(layout, integ.resolution, per_chain, self.group, available)
         self.transport = Transport(scene, layout, integ.resolution, integ.first_shot, frame.seed, integ.max_depth >= 0,
                                    integ.point_sources, children, integ.share_diffuse)
         self.estimator = None if solve_only else ESTIMATORS[integ.estimate](self.transport, integ.hide_emitters,
@@ -97,7 +98,7 @@ class Run:
         self.total, self.burn_in = counts if counts is not None else integ.counts(spp)
         self.window = self.total - self.burn_in
         # a finite depth is exact once every order is there: no growth to watch
-        self.trace = convergence.PowerTrace(layout, self.window) if integ.max_depth < 0 else None
+        self.trace = power_trace.PowerTrace(layout, self.window) if integ.max_depth < 0 else None
         # without averaging, every averaged iteration images everything; with it, the
         # iterations image only the patches that are not averaged (none to image when all
         # are) and the final gathering the averaged ones
@@ -122,7 +123,7 @@ class Run:
         steps = integ.step_cache.get(self.key, freezable(scene, frame.sensor) or not self.uses_sampler)
         # held weakly: the cache keeps the steps, and a frozen step keeps the run it last ran
         # (Dr.Jit holds a frozen function's inputs), so holding them here would be a reference
-        # cycle that keeps the scene until a garbage collection (mi_plugins.collection)
+        # cycle that keeps the scene until a garbage collection (mi_plugins.base.collection)
         self._advance_step, self._image_step = (weakref.ref(step) for step in steps)
         # the steps' inputs as every step leaves them (evaluated, literals made opaque, e.g. in
         # the scene's plugins): a step whose first call saw them otherwise records twice
@@ -215,14 +216,14 @@ class Run:
         if state is None:
             state = self.transport.initial(chain_directions(directions.next()))
         dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
-        cap = max(integ.max_iterations or convergence.EXTENSION_CAP * self.total, self.total)
+        cap = max(integ.max_iterations or burn_in.EXTENSION_CAP * self.total, self.total)
         used, burn_in, self.extended = 0, self.burn_in, 0
         while True:
             state = self.state = self._iterations(steps, directions, state, burn_in)
             used += burn_in + window
             if state is None or self.trace is None:
                 return
-            v = convergence.verdict(*self.trace.numpy(window), used - window)
+            v = burn_in.verdict(*self.trace.numpy(window), used - window)
             if v is None or v.converged:
                 return
             if not integ.adaptive:
@@ -236,7 +237,7 @@ class Run:
             # the work, instead of an image darker than the prediction allows
             burn_in = v.burn_in_needed()
             if used + burn_in + window > cap:
-                raise support.NotConverged(
+                raise errors.NotConverged(
                     integ.plugin, "after a burn-in of %d iterations %s" % (used - window, v.text()),
                     used + burn_in + window, cap, "render this scene with 'qmc_lighttrace', whose particles need no "
                                                   "burn-in")

@@ -3,7 +3,7 @@ purely diffuse patch side (:class:`DiffuseSharing`)."""
 import drjit as dr
 import mitsuba as mi
 
-from mi_plugins.integrators.core import SPLAT_MODE
+from mi_plugins.render.frame import SPLAT_MODE
 from mi_plugins.integrators.ray_bundle.direct import purely_diffuse
 
 

@@ -18,12 +18,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins import seeds
-from mi_plugins.integrators.core import SPLAT_MODE
+from mi_plugins.base import seeds
+from mi_plugins.render.frame import SPLAT_MODE
 from mi_plugins.integrators.ray_bundle.direct import SharedDirect, direct_light_mis
 from mi_plugins.integrators.ray_bundle.sharing import DiffuseSharing
-from mi_plugins.meshtable import scene_bounds
-from mi_plugins.refinement import CHILDREN, child_index
+from mi_plugins.base.queries import scene_bounds
+from mi_plugins.patches.refinement import CHILDREN, child_index
 
 #: a line continues past a hit from a point this far (relative to 1 + the largest
 #: coordinate) beyond the surface; Mitsuba's spawn_ray offsets ~90x more, which skips
@@ -125,7 +125,7 @@ class ChildSums:
 
 
 class ChildStats:
-    """What the lines bring to each child of each front patch side (``mi_plugins.refinement``)."""
+    """What the lines bring to each child of each front patch side (``mi_plugins.patches.refinement``)."""
 
     def __init__(self, table):
         self.table = table

@@ -156,7 +156,7 @@ def render_views(scene_file, spp, *, sensors="all", client=None, seed=0, params=
     scene = mi.load_file(scene_file, **params)
     if scene.integrator() is None:
         raise ValueError("scene '%s' has no integrator" % scene_file)
-    from mi_plugins.views import sensor_list
+    from mi_plugins.solution.views import sensor_list
     sensors = list(range(len(scene.sensors()))) if sensors == "all" else [int(k) for k in sensors]
     sensor_list(scene, sensors)                       # a bad index is refused before any task
     if int(spp) < 1:

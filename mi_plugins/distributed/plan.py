@@ -4,7 +4,7 @@ engine (the Dask runner in :mod:`.dask_engine` only submits and collects them).
 - Every integrator (Mitsuba's, ``stochastic_ray``, ``ray_bundle``): *passes*, pass k
   rendering ``spp_k`` samples with seed ``seed * SEED_STRIDE + k`` (fixed by the pass
   index, never by the worker): exactly the passes of
-  :func:`mi_plugins.passes.render_in_passes` with ``passes = tasks``, merged by the same
+  :func:`mi_plugins.app.passes.render_in_passes` with ``passes = tasks``, merged by the same
   sample-weighted left fold in pass order, so the image is the single-process one.
 - ``qmc_lighttrace``: first *particle* tasks, disjoint contiguous index ranges of one
   sequence (their union is the single-process point set), whose per-patch deposits are
@@ -27,8 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mi_plugins.distributed import serial
-from mi_plugins.distributed_split import ChainGroups, ParticleRanges
-from mi_plugins.passes import SEED_STRIDE, check_seed, root_cause, split_spp
+from mi_plugins.render.phases import ChainGroups, ParticleRanges
+from mi_plugins.render.pass_seeds import SEED_STRIDE, check_seed, split_spp
+from mi_plugins.base.errors import root_cause
 
 #: fewest chains of a ray_bundle chain group: a group runs every iteration's kernels, so
 #: small groups repeat their launch and tracing cost (measured at 128 px: 16 groups of 4
@@ -86,8 +87,8 @@ def phases(integrator, scene, spp, tasks, seed):
     """The phases of a render of ``scene`` with ``spp`` samples in ``tasks`` tasks:
     (first phase or None, image phase, spp per unit of the image phase's merge weight).
     The integrator declares how it splits (``distributed_split(scene, spp)``: a
-    :class:`~mi_plugins.distributed_split.ParticleRanges` or
-    :class:`~mi_plugins.distributed_split.ChainGroups`; None, or an integrator without it:
+    :class:`~mi_plugins.render.phases.ParticleRanges` or
+    :class:`~mi_plugins.render.phases.ChainGroups`; None, or an integrator without it:
     passes)."""
     split = getattr(integrator, "distributed_split", lambda scene, spp: None)(scene, spp)
     if isinstance(split, ParticleRanges):
@@ -125,7 +126,7 @@ def particle_tasks(samples, tasks, seed):
 
 def chain_tasks(chains, spp, tasks, seed):
     """``chains`` chains in at most ``tasks`` groups, each with its own render seed."""
-    from mi_plugins import seeds
+    from mi_plugins.base import seeds
     return [Task("chains", k, spp=int(spp), seed=seeds.stream(seed, "tasks", k), count=n)
             for k, n in enumerate(split_spp(chains, tasks))]
 
@@ -148,7 +149,7 @@ def merge_sums(results, tasks):
 
 def merge_passes(results, tasks):
     """The sample-weighted mean of the finished passes ``results`` (index -> float64
-    image), folded in pass order as :func:`mi_plugins.passes.render_in_passes` does;
+    image), folded in pass order as :func:`mi_plugins.app.passes.render_in_passes` does;
     (image float32, spp of the finished passes), or (None, 0) when none finished."""
     accum, weight = None, 0
     for task in tasks:
@@ -246,7 +247,7 @@ def agreed(results):
 
 def numbering(scene):
     """The numbering of the patches of ``scene``'s integrator: the shapes' order
-    (:func:`shape_order`) and the patches split in the dark (``mi_plugins.darkness``:
+    (:func:`shape_order`) and the patches split in the dark (``mi_plugins.patches.darkness``:
     a point where a ray grazes two touching surfaces may be judged otherwise by another
     process's acceleration structure)."""
     import json
@@ -338,7 +339,7 @@ def run_particles(shipped, params, variant, task, threads=None):
 def keeps_solution(integrator):
     """The integrator displays one view-independent solution for every view (the package's
     finite-element integrators in a display mode, and qmc_lighttrace's particles)."""
-    from mi_plugins.integrators.solving import SolutionIntegrator
+    from mi_plugins.solution.integrator import SolutionIntegrator
     return isinstance(integrator, SolutionIntegrator) and (integrator.display != "gather"
                                                           or integrator.plugin == "qmc_lighttrace")
 
@@ -359,7 +360,7 @@ def run_solve(shipped, params, variant, task, threads=None):
 def run_view(shipped, params, variant, task, threads=None, solution=None):
     """The image (float32) of one sensor, from the shipped ``solution`` where there is one."""
     import mitsuba as mi
-    from mi_plugins.solution import Solution
+    from mi_plugins.solution.solution import Solution
     scene = _scene(shipped, params, variant, threads)
     if solution is not None:
         scene.integrator().use_solution(Solution.from_bytes(solution, scene))

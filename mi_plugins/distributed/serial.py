@@ -1,7 +1,7 @@
 """One task at a time in a worker process, whatever its number of Dask threads.
 
 Dr.Jit's recording state (loops, calls through plugin pointers, frozen functions) and
-the collector switch of :mod:`mi_plugins.collection` belong to the process: two tasks
+the collector switch of :mod:`mi_plugins.base.collection` belong to the process: two tasks
 tracing at once in two threads of one worker corrupt each other (a loop variable
 "presumed to be constant, but it changed", an unknown variable, a hang). So every task
 body takes :data:`LOCK` first (:func:`task`): a worker with N Dask threads runs its
@@ -17,7 +17,7 @@ and those that had to wait: the overlap detector of the tests.
 import contextlib
 import threading
 
-from mi_plugins import collection
+from mi_plugins.base import collection
 
 #: held by the task body running in this process (re-entrant)
 LOCK = threading.RLock()
@@ -75,7 +75,7 @@ def _counted():
 
 @contextlib.contextmanager
 def task():
-    """A task body: :data:`LOCK` held, then :func:`mi_plugins.collection.task` (the
+    """A task body: :data:`LOCK` held, then :func:`mi_plugins.base.collection.task` (the
     collector paused, a collection at the end, both inside the lock: no other task of the
     process traces meanwhile)."""
     _acquire()

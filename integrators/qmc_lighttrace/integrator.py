@@ -1,0 +1,378 @@
+"""``qmc_lighttrace``: Keller's quasi-Monte Carlo light tracing in the radiosity setting
+(A. Keller, "A quasi-Monte Carlo algorithm for the global illumination problem in the
+radiosity setting", 1994): a particle preprocess that deposits irradiance on the
+purely diffuse patches (``qmc_particles``), then a render with direct light and final
+gathering that continues paths across every other surface (``qmc_gather``). The user
+reference is the class docstring.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.patches import darkness, refinement
+from mi_plugins.base import sequences, seeds
+from mi_plugins.render import checks
+from mi_plugins.render.frame import coverage
+from mi_plugins.solution.display import edge_pixels, with_edges
+from mi_plugins.solution.integrator import SolutionIntegrator, solution_meta
+from mi_plugins.patches.neighbours import share_with_neighbours
+from mi_plugins.integrators.qmc_lighttrace.checks import check_gather_lanes
+from mi_plugins.solution.gather import CameraPaths, FlatTables
+from mi_plugins.integrators.qmc_lighttrace.particles import dimensions, trace_range
+from mi_plugins.integrators.qmc_lighttrace.phase import particle_phase
+from mi_plugins.integrators.qmc_lighttrace.store import Layers
+from mi_plugins.solution.surfaces import Surfaces
+from mi_plugins.patches.build import cached_table, patch_parameters
+from mi_plugins.patches.tessellation import default_patch_size
+from mi_plugins.solution.solution import Solution
+from mi_plugins.render.phases import ParticleRanges
+from mi_plugins.base.params import Params
+
+SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
+#: the particle index is 32-bit: at most this many paths (samples, batch, max_samples)
+MAX_PATHS = 1 << 32
+#: at most this many gather samples per eye ray
+MAX_GATHER = 1024
+
+
+class QMCLightTraceIntegrator(SolutionIntegrator):
+    r"""
+    .. _integrator-qmc_lighttrace:
+
+    ``qmc_lighttrace`` (Keller 1994, quasi-Monte Carlo light tracing)
+    -----------------------------------------------------------------
+
+    Preprocess: N particle paths from the lights (surfaces, environment, delta lights),
+    path i driven by point i of a (4 + 3M)-dimensional sequence (0-1: light choice and
+    position, 2-3: direction, then lobe choice and direction of each of the first M =
+    ``sequence_depth`` bounces; later bounces pseudo-random with Russian roulette, so
+    paths are unbounded and unbiased). A particle deposits its irradiance on every
+    *purely diffuse* patch side it hits (only a ``DiffuseReflection`` lobe, no
+    ``bumpmap``/``normalmap``: the radiance they reflect is the same in every direction),
+    with the shading-normal factor |cos_sh| / |cos_geo|; other surfaces store nothing and
+    scatter it on with any BSDF, weighted as Mitsuba's ``path`` weighs the same path.
+    Deposits are kept per hit count (layers) in 64-bit signed fixed point (negative
+    emission included; a seed gives the same deposits every time); optional adaptive
+    termination (section 4: batches until the area-weighted change Delta E, relative to
+    the emitted power / pi, stays below ``epsilon`` for ``patience`` batches).
+    Render: eye rays from the sensor's sampler, through mirrors and glass to the visible
+    point x; there emission + one light sample + SR BSDF (on diffuse x: cosine) gather
+    samples, by multiple importance sampling. A gather sample reaching a purely diffuse
+    y reads y's direct light (light and BSDF sample, MIS) plus the stored light of
+    particle hits k >= 2, x rho(y) / pi (Keller's L_d computed separately, at y: the
+    patches never average the direct light's steep gradients); a non-diffuse y, or a y on
+    a patch at the mouth of a gap narrower than the patch (a ceiling patch reaching past
+    the rim of a lamp facing it: its one value would mix the gap's trapped light with the
+    room's, ``mi_plugins.patches.gaps``), continues the path (light sample, BSDF sample) to the
+    next diffuse surface. ``max_depth`` is
+    Mitsuba's: every estimate holds exactly the paths of at most D segments (the table
+    read at y holds the particle hits that fit in the depth the camera path has left).
+    The eye rays are traced in passes of at most 2^22 gather lanes (eye rays x SR, about
+    110 bytes each), so the memory stays bounded whatever the samples per pixel.
+
+    .. pluginparameters::
+
+     * - max_depth
+       - int
+       - -1
+       - Mitsuba's: -1 unbounded, D >= 0 paths of at most D segments (1: emission only).
+         A finite D keeps max(D - 2, 1) deposit layers: D x patches is limited by memory
+     * - sequence
+       - string
+       - ``'sobol'``
+       - ``'sobol'``, ``'halton'``, ``'faure'``, ``'lcg'`` (drand48), ``'independent'``
+         (PCG32)
+     * - scramble
+       - bool
+       - true
+       - randomise the sequence with the scramble of ``mi_plugins.base.sequences`` (the render
+         seed selects it); ``false``: the plain sequence (and a fixed stream beyond it)
+     * - sequence_depth
+       - int
+       - 3
+       - Keller's M >= 0: bounces drawn from the sequence (4 + 3M dimensions must fit:
+         Halton/Faure M <= 84); later bounces play Russian roulette (survival: the
+         bounce's largest weight, at most 0.99). No truncation. The default measures best:
+         the roulette spares the deep bounces' little light: 1.45x the efficiency
+         (inverse variance per second) of the patches of M = 10 (Keller's truncation
+         depth) on the benchmark's Cornell boxes
+     * - samples
+       - int
+       - 100000
+       - N paths, 1 .. 2^32 (the particle index is 32-bit; when ``epsilon`` is not given)
+     * - epsilon
+       - float
+       - none
+       - > 0: adaptive termination threshold on Delta E
+     * - batch
+       - int
+       - 1000
+       - Delta N, 1 .. 2^32
+     * - patience
+       - int
+       - 2
+       - T >= 1 consecutive batches below ``epsilon``
+     * - max_samples
+       - int
+       - 10^7
+       - 1 .. 2^32, cap for the adaptive termination
+     * - gather_samples
+       - int
+       - 4
+       - SR gather samples per eye ray, 1 .. 1024
+     * - share_neighbors
+       - bool
+       - false
+       - average the gather samples' results with the 8 neighbouring pixels seeing the
+         same side of the same diffuse patch (a smoothing bias)
+     * - mirror_depth
+       - int
+       - -1
+       - -1: follow delta and null lobes as far as ``max_depth`` allows; k >= 0: at most
+         k of them per eye ray and per gather sample (truncates: darker than ``path``)
+     * - patch_size
+       - float
+       - scene diagonal / 24
+       - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
+         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64).
+         Stored irradiance is constant per patch: a smaller h lowers the discretisation
+         bias of the indirect light and raises the patch count (memory, noise per patch)
+     * - subdivide
+       - bool
+       - true
+       - split long mesh triangles (above); false keeps the triangles as modelled (the
+         papers' patches)
+     * - cluster
+       - bool
+       - true
+       - group mesh triangles much smaller than the patch size (longest edge below h / 2)
+         into patches of about h by grid cell and normal direction (within about 45
+         degrees), so that the patch count follows the surface area, not the triangle
+         count (``mi_plugins.patches.mesh_parts``); false: one patch per small triangle
+     * - dark_levels
+       - int
+       - 2
+       - >= 0: split the patches that lie partly in the dark (under an object resting on
+         them, inside a closed object, past a floor or ceiling they run through) or that a
+         surface standing on them cuts (a thin panel on a floor) this many times along the
+         boundary, so that the solution's displays neither show the lit part darkened by
+         the dark one nor carry light past the panel (``mi_plugins.patches.darkness``); 0: the patches as they are
+     * - display
+       - string
+       - ``'gather'``
+       - how the image is made: ``'gather'`` (the estimate above); ``'smooth'``,
+         ``'patches'``, ``'baked'``: from the view-independent solution (the particles'
+         irradiance per patch side, ``mi_plugins.solution.solution``). Any display keeps the
+         solution for every later render of the scene with the same seed, whatever the
+         sensor or spp. ``'smooth'``: direct light by next-event estimation plus the
+         stored light interpolated from per-vertex values, no gather ray; ``'patches'``:
+         the flat patch values; ``'baked'``: the interpolated patch radiance (max_depth
+         -1); glossy and specular visible points gather as above (``integrators.display``)
+     * - emitter_samples
+       - int
+       - 8
+       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every
+         display (the gather's and the solution's): the sample's film position shifted by
+         the points of a rank-1 lattice, in the pixels on a visible emitter's edge only
+         (found by one such set of rays per pixel: where they see different emission).
+         There a pixel sees the emitter or not by chance, a noise every camera sample of
+         ``path`` carries; 8 rays cut it 14-25 fold with a box filter (7 fold with a
+         Gaussian one) at the cost of 7 camera rays there. 1: off
+     * - preview_every
+       - int
+       - 0
+       - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set, after every
+         N of the particle phase's 8 ranges the image of the solution so far (smooth
+         display, one sample per pixel)
+     * - refine
+       - bool
+       - false
+       - adaptive subdivision: after each of the first 4 of the particle phase's 8 ranges,
+         split the patches inside which the irradiance varies (their children's estimates
+         differ from the patch's beyond their noise together, at 4 sigma, and a child's by
+         more than ``refine_threshold``: shadow boundaries, the pools of spot lights;
+         ``mi_plugins.patches.refinement``), the largest errors first; a child keeps what its
+         parent measured there. Not with ``epsilon``
+     * - refine_threshold
+       - float
+       - 0.1
+       - > 0: the relative variation that splits a patch
+     * - min_patch_size
+       - float
+       - patch_size / 4
+       - > 0: patches are not split below this size
+     * - max_patches
+       - int
+       - 4 x the patches before refining
+       - >= 1: splits stop at this many patches
+     * - hide_emitters
+       - bool
+       - false
+       - hide directly visible emitters as Mitsuba does: eye rays pass through area
+         emitters and do not see the environment
+
+    Particles and light samples take textured ``area`` lights uniformly on their shape
+    (``mi_plugins.light.sources``: Mitsuba's own sampling of them is wrong on ``flip_normals``
+    rectangles and on meshes whose uv map does not cover the unit square once).
+    Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
+    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.patches.meshtable``).
+    Refused before any work, by name: other shapes, participating media, emitters that
+    emit in one direction only (``directionalarea``: no light sample reaches them), and
+    deposit layers x patches above 2^24 or half the available memory. After a render,
+    ``integrator.irradiance`` (numpy (layers, K, 2, 3): hit-count layer, patch, side (0:
+    the one its normal points to), RGB), ``triangle_areas``, ``patch_shapes`` (shape id
+    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result (none
+    is traced for a render with ``max_depth`` <= 3, which reads no stored light);
+    ``integrator.preprocess(scene, seed)`` runs it alone and also sets
+    ``triangle_radiance`` (numpy (K, 2, 3): L0 + reflected, the particles' light reflected
+    by the BSDF at the patch centroid, 0 on non-diffuse patches) and ``reflected_radiance``.
+
+    .. code-block:: python
+
+        {'type': 'qmc_lighttrace', 'sequence': 'sobol', 'sequence_depth': 10, 'epsilon': 1e-3, 'gather_samples': 16}
+
+    .. code-block:: xml
+
+        <integrator type="qmc_lighttrace"><string name="sequence" value="faure"/>
+            <integer name="max_depth" value="-1"/><integer name="samples" value="100000"/></integrator>
+    """
+
+
+    def __init__(self, props):
+        super().__init__(props)
+        p = Params(props, self.plugin)
+        self.max_depth = p.int("max_depth", -1, lo=-1, note="-1: unbounded")
+        self.sequence = p.choice("sequence", "sobol", SEQUENCES)
+        self.scramble = p.bool("scramble", True)
+        self.sequence_depth = p.int("sequence_depth", 3, lo=0)
+        self.samples = p.int("samples", 100000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
+        self.epsilon = p.float("epsilon", None, lo=0, lo_open=True, note="optional: adaptive termination")
+        self.batch = p.int("batch", 1000, lo=1, hi=MAX_PATHS)
+        self.patience = p.int("patience", 2, lo=1)
+        self.max_samples = p.int("max_samples", 10000000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
+        self.gather_samples = p.int("gather_samples", 4, lo=1, hi=MAX_GATHER)
+        self.share_neighbors = p.bool("share_neighbors", False)
+        self.mirror_depth = p.int("mirror_depth", -1, lo=-1, note="-1: as far as max_depth allows")
+        self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
+        self.dark_levels = darkness.read_levels(p)
+        self.dims, limit = dimensions(self.sequence_depth), sequences.max_dim(self.sequence)   # lcg, independent: no limit
+        if self.dims > limit:
+            raise p.conflict(("sequence_depth", "sequence"), "sequence_depth <= %d with sequence '%s': "
+                             "sequence_depth=%d needs %d dimensions; sequence '%s' has %d"
+                             % ((limit - 4) // 3, self.sequence, self.sequence_depth, self.dims, self.sequence, limit))
+        self.refine, self.refine_threshold, self.min_patch_size, self.max_patches = refinement.read_parameters(p)
+        if self.refine and self.epsilon is not None:
+            raise p.conflict(("refine", "epsilon"), "refine=true with a fixed samples count (no epsilon: the "
+                                                    "refinement follows the particle phase's fixed ranges)")
+        self.refinements = []
+        self.read_display(p)
+        if self.display != "gather" and self.share_neighbors:
+            raise p.conflict(("share_neighbors", "display"), "share_neighbors=true with display='gather' only (it "
+                                                             "averages the gather samples of neighbouring pixels)")
+        if self.display == "baked" and self.max_depth >= 0:
+            raise p.conflict(("display", "max_depth"), "display='baked' with max_depth=-1 (it shows the solution's "
+                                                       "full radiance); display='smooth' reads any max_depth")
+        self.layers = Layers(self.max_depth, visible=self.display != "gather")
+        self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
+        self.paths_used, self.delta_e_history = 0, []
+
+    def check_scene(self, scene, sensor):
+        super().check_scene(scene, sensor)
+        checks.refuse_shapes_without_patches(self.plugin, scene)
+        checks.refuse_one_direction_emitters(self.plugin, scene)
+
+    # ------------------------------------------------------------------ preprocessing
+    def preprocess(self, scene, seed=0, report=True):
+        """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
+        returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
+        self.prepare(scene, None)
+        particle_phase(self, scene, self.patch_table(scene), seed, report=report)
+        return self.triangle_radiance, self.triangle_areas
+
+    def solution_settings(self):
+        return (self.sequence, self.scramble, self.sequence_depth, self.samples, self.epsilon, self.batch,
+                self.patience, self.max_samples, self.max_depth, self.layers.max_hits, self.patch_size,
+                self.subdivide, self.cluster, self.refine, self.refine_threshold, self.min_patch_size,
+                self.max_patches, self.dark_levels)
+
+    def compute_solution(self, scene, table, seed, preview=None, **unused):
+        """The particle phase as a view-independent solution (read tables of particle hits
+        k >= 2; the direct light is added per point or per patch by the display)."""
+        def partial(tables, paths, done, total):
+            at = refinement.replay(table, self.refinements)
+            preview(Solution(tables, at.areas_np, self._meta(scene, at, seed, paths)), done, total, at)
+        tables, error, refined = particle_phase(self, scene, table, seed, rendering=self.display == "gather",
+                                                preview=partial if preview is not None else None)
+        return Solution(tables, refined.areas_np, self._meta(scene, refined, seed, self.paths_used), error=error)
+
+    def _meta(self, scene, table, seed, paths):
+        return solution_meta(self, scene, table, seed, self.patch_size_for(scene), paths=int(paths),
+                             sequence=self.sequence, refinements=list(self.refinements))
+
+    def patch_size_for(self, scene):
+        """``patch_size``, or by default the scene's diagonal / 24."""
+        return self.patch_size if self.patch_size is not None else default_patch_size(scene)
+
+    def patch_table(self, scene):
+        """The patches of ``scene`` (``patch_size``, ``subdivide``; the dark splits of
+        ``dark_record`` where one is given)."""
+        table = cached_table(scene, self.plugin, self.patch_size_for(scene), subdivide=self.subdivide,
+                             cluster=self.cluster, dark_levels=self.dark_levels)
+        return darkness.with_splits(table, self.dark_record)     # (a distributed render's record)
+
+    # ------------------------------------------------------------------ distributed parts
+    def distributed_split(self, scene, spp):
+        """A distributed render first traces disjoint ranges of the particle sequence
+        (:meth:`trace_particles`), sums them, then renders passes with the sum
+        (:meth:`render_with_particles`); adaptive termination is sequential: refused."""
+        if self.epsilon is not None:
+            raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
+                             "split; valid for distributed rendering: no epsilon, a fixed samples count"
+                             % self.epsilon)
+        return ParticleRanges(paths=self.samples)
+
+    def trace_particles(self, scene, start, count, seed):
+        """The deposits (layers, K, 2, 3) of the paths start .. start + count - 1."""
+        return trace_range(self, scene, self.patch_table(scene), start, count, seed)[0]
+
+    def render_with_particles(self, scene, deposits, paths, spp, seed):
+        """The image of a render whose particle phase was traced elsewhere: ``deposits``
+        (layers, K, 2, 3) of ``paths`` paths (e.g. summed over the ranges of a distributed
+        render)."""
+        return self.render_task(scene, (deposits, paths), spp=spp, seed=seed)
+
+    # ------------------------------------------------------------------ rendering
+    def render_frame(self, frame):
+        scene = frame.scene
+        per_pixel, passes = check_gather_lanes(self.plugin, frame, self.gather_samples)
+        table = self.patch_table(scene)
+        if frame.task is not None:         # a distributed render: the particles were traced elsewhere
+            self.refinements = []
+            solution = Solution(particle_phase(self, scene, table, frame.seed, given=frame.task)[0], table.areas_np,
+                                self._meta(scene, table, frame.seed, self.paths_used))
+        else:
+            solution = self.solution_for(scene, frame.seed, table, frame.sensor)
+            table = self.table_of(scene, solution)
+        if self.display != "gather":
+            return self.render_display(frame, solution, table)
+        tables = solution.tables.reshape(-1, 3) if solution.tables.size else np.zeros((2, 3))   # (never width 1)
+        stored = FlatTables(table, mi.Color3f(*(mi.Float(tables[:, c]) for c in range(3))))
+        paths = CameraPaths(scene, table, Surfaces(scene, table), self.layers, stored, self.max_depth, self.mirror_depth,
+                            self.hide_emitters)
+        # passes of a bounded number of gather lanes (their memory: about 110 bytes each)
+        frame.camera_passes(per_pixel, passes)
+        edges = edge_pixels(frame, self.max_depth, self.hide_emitters, self.emitter_samples)
+        for k in range(passes):
+            cam = frame.camera_pass()
+            seed = frame.seed if k == 0 else seeds.stream(frame.seed, "gather pass", k)
+            chain, si, light, gathered = paths.estimate(cam, seed, self.gather_samples)
+            if self.share_neighbors:
+                gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
+            value = with_edges(frame, cam, chain, edges, chain.emission + chain.throughput * (light + gathered), seed)
+            frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, self.hide_emitters))
+            if passes > 1:
+                dr.eval(frame.state())
+
+    def to_string(self):
+        return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (
+            self.sequence, self.max_depth, self.sequence_depth, self.samples)

@@ -1,0 +1,146 @@
+"""The base class of the finite-element integrators (``ray_bundle``, ``qmc_lighttrace``):
+view-independent solutions, kept and shown.
+
+:class:`SolutionIntegrator` adds to :class:`~mi_plugins.render.core.CoreIntegrator`:
+
+- the ``display`` parameter (``integrators.display``: 'gather', the integrator's own
+  estimate, or 'smooth', 'patches', 'baked' from the solution) and ``preview_every``;
+- the solution of the last scene and seed it rendered (:meth:`solution_for`): a render
+  of the same scene (same object, same content: ``mi_plugins.base.fingerprint``) with the
+  same seed and settings reuses it, whatever the sensor or spp; another seed, an edited
+  scene or another scene object solves again (``solve_count`` counts the solves). The
+  cache holds numpy arrays only, never the scene (which holds the integrator);
+- :meth:`solve` (``mi_plugins.solve``), :meth:`use_solution` (a solution loaded from a
+  file or shipped to a worker) and ``preview_callback`` (``f(image, done, total)``,
+  called every ``preview_every`` steps of a solve with the image of the solution so far).
+
+A plugin implements ``solution_settings()`` (every parameter its solution depends on)
+and ``compute_solution(scene, table, seed, preview)``.
+"""
+import time
+
+import mitsuba as mi
+import numpy as np
+
+from mi_plugins.base import collection, fingerprint
+from mi_plugins.solution import display
+from mi_plugins.render.core import CoreIntegrator
+from mi_plugins.render.frame import Frame
+
+
+class SolutionIntegrator(CoreIntegrator):
+    """See the module docstring."""
+
+    def read_display(self, p):
+        """Read ``display`` and ``preview_every`` with the plugin's reader ``p``."""
+        self.display = p.choice("display", "gather", display.DISPLAYS)
+        self.preview_every = p.int("preview_every", 0, lo=0, note="0: no previews")
+        self.emitter_samples = p.int("emitter_samples", display.DEFAULT_EMITTER_SAMPLES, lo=1,
+                                     hi=display.MAX_EMITTER_SAMPLES)
+        self.preview_callback = None
+        self.solve_count = 0
+        self._cached = None          # (key, Solution) of the last solve
+        self._given = None           # a Solution handed over by use_solution
+        self.dark_record = None      # dark splits to replay (a distributed render's; None: its own)
+
+    # ------------------------------------------------------------------ hooks
+    def solution_settings(self):
+        """Every parameter value the solution depends on (a tuple)."""
+        raise NotImplementedError
+
+    def compute_solution(self, scene, table, seed, preview=None, sensor=None, **solve):
+        """Solve ``scene`` (patches ``table``) with ``seed``: a Solution;
+        ``preview(solution_so_far, done, total[, patches])`` may be called along the way
+        (``patches``: the table that solution is on, when refinement has split ``table``); ``sensor``:
+        the sensor of the render that asks for it (None: the scene's first)."""
+        raise NotImplementedError
+
+    def patch_table(self, scene):
+        """The patches of ``scene`` the solution is numbered by."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ the cache
+    def _key(self, scene, seed):
+        return (id(scene), fingerprint.scene_fingerprint(scene), int(seed), self.solution_settings())
+
+    def solution_for(self, scene, seed, table, sensor=None, **solve):
+        """The solution of ``scene`` (patches ``table``) and ``seed``: the kept or given one
+        where it matches, else a new solve (kept for the next render unless it was stopped
+        early); ``solve``: further arguments of ``compute_solution``."""
+        key = self._key(scene, seed)
+        settings = list(map(repr, key[3]))
+        given = self._given
+        if given is not None and given.meta["fingerprint"] == key[1] and given.seed == int(seed) \
+                and given.meta.get("settings_key") == settings:
+            return given
+        if self._cached is not None and self._cached[0] == key:
+            return self._cached[1]
+        preview = self._previewer(scene, sensor, table) if self.preview_every and self.preview_callback else None
+        start = time.perf_counter()
+        solution = self.compute_solution(scene, table, int(seed), preview, sensor=sensor, **solve)
+        solution.meta.update(seconds=time.perf_counter() - start, settings_key=settings)
+        self.solve_count += 1
+        if not self.progress.interrupted:
+            self._cached = (key, solution)
+        return solution
+
+    def solve(self, scene, seed=0):
+        """The view-independent solution of ``scene``, complete (geometry, direct light);
+        no garbage collection meanwhile (:mod:`mi_plugins.base.collection`)."""
+        with collection.paused():
+            self.prepare(scene, None)
+            solution = self.solution_for(scene, seed, self.patch_table(scene))
+            return solution.complete(scene, self.table_of(scene, solution))
+
+    def table_of(self, scene, solution):
+        """The patches ``solution`` is numbered by: its recorded dark splits (this process's
+        own where they agree; a loaded solution's may differ: ``darkness.with_splits``)
+        and its refinements."""
+        from mi_plugins.patches import darkness, refinement
+        table = darkness.with_splits(self.patch_table(scene), solution.meta.get("dark_splits"))
+        return refinement.replay(table, solution.meta.get("refinements"))
+
+    def use_solution(self, solution):
+        """Render from ``solution`` (e.g. ``Solution.load(path, scene)``): every later render
+        of a scene with its content, seed and settings uses it instead of solving; None
+        forgets it."""
+        self._given = solution
+
+    # ------------------------------------------------------------------ display
+    def render_display(self, frame, solution, table, steps=None):
+        """The frame's image from ``solution`` in this integrator's display mode."""
+        solution.complete(frame.scene, table)
+        view = display.View(solution, table, self.display)
+        display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
+                       getattr(self, "gather_samples", 1), steps, self.emitter_samples)
+
+    def _previewer(self, scene, sensor, table):
+        """``preview(solution, done, total, patches=table)``: the image (one camera sample per pixel) of the
+        solution so far, in the display mode ('smooth' for 'gather'), handed to
+        ``preview_callback(image, done, total)`` every ``preview_every`` steps."""
+        sensor = sensor if sensor is not None else scene.sensors()[0]
+        mode = self.display if self.display != "gather" else "smooth"
+        last = [0]
+
+        def preview(solution, done, total, patches=table):
+            # ``patches``: the table the solution is on (a refined one, after splits)
+            if last[0] < done < last[0] + self.preview_every and done < total:
+                return                      # (a count that starts again, e.g. an extended burn-in, shows)
+            last[0] = done
+            frame = Frame(scene, sensor, 1, 0, self.plugin)
+            solution.complete(scene, patches)
+            display.render(frame, display.View(solution, patches, mode), self.max_depth, -1, self.hide_emitters, 1)
+            self.preview_callback(mi.TensorXf(frame.develop()), done, total)
+        return preview
+
+
+def solution_meta(integ, scene, table, seed, patch_size, **extra):
+    """The ``meta`` of a solution of ``integ`` (see mi_plugins.solution.solution)."""
+    counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(table.shapes))
+    shapes = [dict(id=shape.id(), digest=digest, patches=int(count), triangles=summary[1], **{"class": summary[0]})
+              for shape, digest, count, summary in zip(table.shapes, fingerprint.shape_digests(scene), counts,
+                                                       fingerprint.shape_summary(scene))]
+    return dict(integrator=integ.plugin, seed=int(seed), max_depth=int(integ.max_depth), patch_size=float(patch_size),
+                subdivide=bool(integ.subdivide), cluster=bool(integ.cluster), dark_levels=int(integ.dark_levels),
+                dark_splits=list(table.dark_rounds),
+                fingerprint=fingerprint.scene_fingerprint(scene), shapes=shapes, **extra)
