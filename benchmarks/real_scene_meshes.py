@@ -31,6 +31,7 @@ import time
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.patches import tessellation
 from mi_plugins.verify import geometry as geo
 
 CACHE = os.path.join(os.path.dirname(os.path.abspath(__file__)), ".cache")
@@ -87,10 +88,10 @@ def quads_mesh(quads, facing):
 def blob(k):
     """The displaced geodesic sphere (20 k^2 triangles, outward), standing on the floor.
     Each icosahedron face (A, B, C) is split into the lattice points (k-i-j, i, j) / k
-    (`mi_plugins.verify.geometry.triangle_lattice`): k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
+    (`mi_plugins.patches.tessellation.triangle_lattice`): k(k+1)/2 upward and k(k-1)/2 downward triangles. Points on a shared edge get the
     same two non-zero weights on both faces, hence bit-identical positions: no cracks."""
     ico = geo.icosphere(0, inward=False)                        # the icosahedron, outward
-    lattice = geo.triangle_lattice(k)                           # (T, 3 vertices, 2) lattice coordinates (i, j)
+    lattice = tessellation.triangle_lattice(k)                           # (T, 3 vertices, 2) lattice coordinates (i, j)
     w = np.concatenate([(k - lattice.sum(-1))[..., None], lattice], axis=-1) / k       # (T, 3, 3)
     p = np.einsum("tvc,fcx->ftvx", w, ico.vertices[ico.faces]).reshape(-1, 3, 3)    # (20 T, 3, 3)
     d = p / np.linalg.norm(p, axis=-1, keepdims=True)

@@ -28,7 +28,7 @@ def _imported_bare():
     mitsuba = sys.modules.get("mitsuba")
     if mitsuba is not None and getattr(mitsuba, "variant", lambda: None)() is not None:
         return False
-    target = __name__ + ".pytest_plugin"
+    target = __name__ + ".verify.pytest_plugin"
     frame = sys._getframe(1)
     while frame is not None:   # Python imports a package before its submodule
         if frame.f_code.co_name == "_find_and_load_unlocked" and frame.f_locals.get("name") == target:
@@ -143,5 +143,5 @@ else:
         mi.set_variant(os.environ["MI_PLUGINS_VARIANT"])
 
     registered = register()
-    if __name__ + ".pytest_plugin" in sys.modules:  # loaded earlier with a bare parent
-        pytest_plugin = sys.modules[__name__ + ".pytest_plugin"]
+    if __name__ + ".verify.pytest_plugin" in sys.modules:  # loaded earlier with a bare parent
+        pytest_plugin = sys.modules[__name__ + ".verify.pytest_plugin"]

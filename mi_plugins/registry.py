@@ -44,7 +44,7 @@ def register_all(variant):
     for folder in KINDS:
         pkg = importlib.import_module("mi_plugins." + folder)
         for base in getattr(pkg, "BASES", []):
-            _plugin_class("mi_plugins.%s.%s" % (folder, base), None, variant)
+            _plugin_class(base if "." in base else "mi_plugins.%s.%s" % (folder, base), None, variant)
     registered = {}
     for kind, plugins in plugin_table().items():
         register_fn = getattr(mi, "register_" + kind)

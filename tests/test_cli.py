@@ -169,7 +169,7 @@ def test_interrupted_iterative_render_keeps_finished_iterations(integrator):
     res = passes.render_in_passes(scene, spp=2, passes=2, callback=on_pass)
     assert res.interrupted and res.passes_done == 1 and seen == [1]
     assert res.iterations == 2 * per_pass and res.iterations_done == per_pass + 24
-    assert integ.averaged_fraction == pytest.approx((24 - 8) / (per_pass - 8))
+    assert integ.progress.averaged_fraction == pytest.approx((24 - 8) / (per_pass - 8))
     assert integ.progress_callback is None
     assert np.all(np.isfinite(res.image)) and abs(res.image.mean() - 1.0) < 0.1
 
@@ -203,7 +203,7 @@ def test_interrupted_pass_weighting_matches_separate_renders(integrator):
     integ.progress_callback = lambda finished, total_iterations: finished < 24
     second = np.array(mi.render(scene, spp=1, seed=seed * 100003 + 1), dtype=np.float64)
     integ.progress_callback = None
-    share = integ.averaged_fraction
+    share = integ.progress.averaged_fraction
     assert share == pytest.approx(0.5)
     expected = (first * 2 + second * 1 * share) / (2 + 1 * share)
     assert np.allclose(res.image, expected, rtol=1e-6, atol=1e-6), np.abs(res.image - expected).max()

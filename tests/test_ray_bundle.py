@@ -627,14 +627,14 @@ def test_average_diffuse_progress_counts_the_final_gathering():
         return done != 6
     integ.progress_callback = stop_once
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
-    assert integ.iterations_done == 6 + 4 and integ.interrupted and asked == list(range(1, 11))
+    assert integ.progress.done == 6 + 4 and integ.progress.interrupted and asked == list(range(1, 11))
     # a sanity bound (per-run SD of the mean ~2 % here; the values are tested elsewhere):
     # weighting the finished passes as if all had run would give 0.5 or less
     assert np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.2
     integ.progress_callback = lambda done, total: done < 6
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(1)))
     integ.progress_callback = None
-    assert integ.iterations_done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.2
+    assert integ.progress.done == 6 + 1 and np.all(np.isfinite(img)) and abs(img.mean() - 1.0) < 0.2
     a, b = np.array(mi.render(scene, seed=budget.seed(5), spp=1)), np.array(mi.render(scene, seed=budget.seed(5), spp=1))
     assert_same_image(a, b)
 
@@ -735,7 +735,7 @@ def test_fixed_seed_is_deterministic_and_progress_stops():
     integ.progress_callback = lambda done, total: done < 3
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(0)))
     integ.progress_callback = None
-    assert integ.iterations_done == 3 and np.all(np.isfinite(img))
+    assert integ.progress.done == 3 and np.all(np.isfinite(img))
 
 
 def test_xml():

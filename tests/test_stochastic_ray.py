@@ -239,7 +239,7 @@ def test_progress_callback_and_early_stop():
     img = np.array(mi.render(scene, spp=1, seed=budget.seed(0)))
     integ.progress_callback = None
     assert calls == [(1, 10), (2, 10), (3, 10), (4, 10)]
-    assert integ.iterations_done == 4
+    assert integ.progress.done == 4
     assert np.all(np.isfinite(img)) and 0.5 < img.mean() < 1.5
 
 

@@ -37,11 +37,6 @@ DEPOSIT_GUESS = 64.0
 MAX_SURVIVAL = 0.99
 
 
-def patch_side(table, si):
-    """2 x patch + side of hits ``si``: side 0 is the one the geometric normal points to."""
-    return table.patch(si) * 2 + side_of(si)
-
-
 def dimensions(sequence_depth):
     """Sequence dimensions of a path: 4 + 3 per bounce."""
     return 4 + 3 * int(sequence_depth)

@@ -19,9 +19,8 @@ from mi_plugins.integrators.qmc_lighttrace.store import check_memory
 GROUPS = 8
 MIN_GROUP_PATHS = 256
 #: with ``refine``: the ranges after which patches may split (the later ones estimate the
-#: refined patches), and the default patch budget (times the initial patches)
+#: refined patches)
 REFINE_RANGES = 4
-REFINE_BUDGET = 4
 #: Mitsuba's luminance weights of linear RGB (mi.luminance)
 LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
@@ -105,7 +104,7 @@ def _refining(integ, scene, table, seed, preview):
     total = np.zeros((layers, k, 2, 3))
     children, squares = np.zeros((layers, k, 2, CHILDREN, 3)), np.zeros((k, 2, CHILDREN))
     since, made = np.zeros(k), np.zeros(k)     # paths before each patch's estimate and children began
-    budget = integ.max_patches or REFINE_BUDGET * k
+    budget = integ.max_patches or refinement.DEFAULT_BUDGET * k
     min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
     for g in range(groups):
         deposit, _, found = trace_range(integ, scene, table, bounds[g], bounds[g + 1] - bounds[g], seed, children=True)

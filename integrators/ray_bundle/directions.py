@@ -96,13 +96,6 @@ class DirectionStream:
         return np.mod(np.stack(vals, axis=1) + self.pi_shift, 1.0)
 
 
-def global_directions(kind, count, chains, rng, stratify=False, antipodal=False):
-    """Directions of ``count`` iterations of ``chains`` chains at once: numpy (count,
-    chains, 3) (for analysis; renders use a :class:`DirectionStream`)."""
-    stream = DirectionStream(kind, chains, rng, stratify, antipodal, count)
-    return np.stack([stream.next() for _ in range(count)])
-
-
 def uniform_sphere_directions(samples):
     """Points of [0,1)^2 (numpy (n, 2)) -> uniform unit directions (n, 3): the first
     coordinate sets z = cos(theta), the second the azimuth, so Hammersley points sweep

@@ -64,10 +64,5 @@ def choose(integ, run, scene, seed):
         more = refinement.from_points(table, *direct[2:])
         sums, squares = sums + more[0], squares + more[1]
     min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
-    budget = integ.max_patches or refinement_budget(table)
+    budget = integ.max_patches or refinement.DEFAULT_BUDGET * table.front_count
     return refinement.choose(table, sums, squares, integ.refine_threshold, min_size, budget)
-
-
-def refinement_budget(table):
-    from mi_plugins.integrators.qmc_lighttrace.phase import REFINE_BUDGET
-    return REFINE_BUDGET * table.front_count

@@ -17,7 +17,7 @@ import mitsuba as mi
 
 from mi_plugins.base import seeds, errors
 from mi_plugins.integrators.ray_bundle import power_trace, memory
-from mi_plugins.render import burn_in
+from mi_plugins.render.burn_in import EXTENSION_CAP, verdict
 from mi_plugins.integrators.ray_bundle.average import DiffuseAverage
 from mi_plugins.solution.display import edge_pixels
 from mi_plugins.integrators.ray_bundle.directions import DirectionStream, chain_directions
@@ -216,14 +216,14 @@ class Run:
         if state is None:
             state = self.transport.initial(chain_directions(directions.next()))
         dr.make_opaque(state, self.transport.mutable())   # as every later step's: one recording
-        cap = max(integ.max_iterations or burn_in.EXTENSION_CAP * self.total, self.total)
+        cap = max(integ.max_iterations or EXTENSION_CAP * self.total, self.total)
         used, burn_in, self.extended = 0, self.burn_in, 0
         while True:
             state = self.state = self._iterations(steps, directions, state, burn_in)
             used += burn_in + window
             if state is None or self.trace is None:
                 return
-            v = burn_in.verdict(*self.trace.numpy(window), used - window)
+            v = verdict(*self.trace.numpy(window), used - window)
             if v is None or v.converged:
                 return
             if not integ.adaptive:
@@ -242,9 +242,7 @@ class Run:
                     used + burn_in + window, cap, "render this scene with 'qmc_lighttrace', whose particles need no "
                                                   "burn-in")
             self.extended += burn_in + window
-            steps.count = burn_in + window
-            steps.state.total += burn_in + window
-            steps.state.burn_in = used + burn_in
+            steps.next_window(used, burn_in, window)
             for reset in (self.average, self.trace, self.irradiance):
                 if reset is not None:
                     reset.reset()

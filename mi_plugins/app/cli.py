@@ -80,7 +80,7 @@ def _parser():
 
 
 def _view(args):
-    from mi_plugins.solution.viewer import view_files
+    from mi_plugins.app.view import view_files
     path = view_files(args.solution, args.scene, args.output, args.sensor, args.exposure, _parse_defines(args.defines))
     print("wrote %s (%.0f kB)" % (path, os.path.getsize(path) / 1e3))
     return 0

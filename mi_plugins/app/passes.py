@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.render.pass_seeds import SEED_STRIDE, check_seed, scene_spp, split_spp
 from mi_plugins.render.progress import Progress
 
 
@@ -39,41 +40,6 @@ class PassResult:
     def empty(self):
         """True when no finished work made it into the image (it is then all zeros)."""
         return self.passes_done == 0 and self.partial_pass == 0.0
-
-
-#: pass k of a render with seed s uses Mitsuba seed s * SEED_STRIDE + k (a 32-bit integer)
-SEED_STRIDE = 100003
-
-
-def check_seed(seed, passes):
-    """ValueError unless every pass seed of ``passes`` passes fits Mitsuba's 32-bit seed."""
-    top = (2 ** 32 - int(passes)) // SEED_STRIDE
-    if not 0 <= int(seed) <= top:
-        raise ValueError("seed=%d is out of range; valid range: 0 .. %d (with %d passes)" % (seed, top, passes))
-
-
-def root_cause(error):
-    """The innermost exception with a message along the ``__cause__`` chain: mi.render
-    wraps an exception raised in a Python integrator into a generic Dr.Jit RuntimeError
-    ("error while performing a custom differentiable operation")."""
-    best, seen = error, set()
-    while error is not None and id(error) not in seen:
-        seen.add(id(error))
-        if str(error).strip():
-            best = error
-        error = error.__cause__
-    return best
-
-
-def split_spp(spp, passes):
-    """Split ``spp`` into at most ``passes`` positive parts that differ by at most one."""
-    passes = max(1, min(int(passes), int(spp)))
-    base, extra = divmod(int(spp), passes)
-    return [base + (1 if k < extra else 0) for k in range(passes)]
-
-
-def scene_spp(scene):
-    return int(scene.sensors()[0].sampler().sample_count())
 
 
 def _iterative(integrator):

@@ -47,7 +47,8 @@ import numpy as np
 SEQUENCES = ("halton", "faure", "sobol", "hammersley", "lcg", "independent")
 MAX_HALTON_DIM = 256
 MAX_SOBOL_DIM = 1024
-_DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "sobol_joe_kuo_1024.npz")
+_DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data",
+                     "sobol_joe_kuo_1024.npz")
 
 
 class DimensionError(ValueError):

@@ -20,11 +20,6 @@ def texture_max(texture):
         return float(np.max(np.array(_grid_values(texture))))
 
 
-def texture_min(texture):
-    """Smallest value (over channels and the uv domain) of a texture, as a float."""
-    return float(np.min(np.array(_grid_values(texture))))
-
-
 def texture_range(texture):
     """(smallest value, largest value, all values finite) of a texture over channels and
     the uv domain (one scan of the uv grid; the largest value also from ``max()``)."""

@@ -14,7 +14,6 @@ shape's cells (``mi_plugins.patches.tessellation``) are one element and one patc
 """
 import numpy as np
 
-from mi_plugins.verify import geometry
 from mi_plugins.patches import tessellation
 
 #: subdivision level s (s x s sub-triangles per triangle) at the most
@@ -41,8 +40,9 @@ def longest_edges(p):
 
 def sub_triangles(s):
     """Barycentric corners (b1, b2) of the s x s sub-triangles, (s^2, 3, 2), in the order
-    of ``meshtable.sub_triangle`` (:func:`mi_plugins.verify.geometry.triangle_lattice`)."""
-    return geometry.triangle_lattice(s) / float(s)
+    of :func:`mi_plugins.patches.tessellation.sub_triangle_coords`
+    (:func:`mi_plugins.patches.tessellation.triangle_lattice`)."""
+    return tessellation.triangle_lattice(s) / float(s)
 
 
 def normal_bucket(normals):

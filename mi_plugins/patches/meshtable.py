@@ -30,21 +30,13 @@ import numpy as np
 
 from mi_plugins.patches import tessellation
 from mi_plugins.patches.mesh_parts import MAX_SPLIT, analytic_part, mesh_part, sub_triangles  # noqa: F401
+from mi_plugins.base.queries import is_mesh, reflects_on_both_sides
 from mi_plugins.patches.normals import require_consistent_normals
+from mi_plugins.patches.tessellation import default_patch_size, sub_triangle_coords
 
 
 class NonMeshShapeError(ValueError):
     """A shape that is not a triangle mesh was given to a triangle-based algorithm."""
-
-
-def _reflects_on_both_sides(shape):
-    bsdf = shape.bsdf()
-    flags = int(bsdf.flags()) if bsdf is not None else 0
-    return bool(flags & int(mi.BSDFFlags.BackSide)) and bool(flags & int(mi.BSDFFlags.Smooth))
-
-
-def _is_mesh(shape):
-    return isinstance(shape, mi.Mesh) and "vertex_positions" in mi.traverse(shape).keys()
 
 
 def require_meshes(scene, who):
@@ -52,7 +44,7 @@ def require_meshes(scene, who):
     patch division (:data:`mi_plugins.patches.tessellation.KINDS`)."""
     for shape in scene.shapes():
         kind = tessellation.shape_kind(shape)
-        if not _is_mesh(shape) and kind not in tessellation.KINDS:
+        if not is_mesh(shape) and kind not in tessellation.KINDS:
             raise NonMeshShapeError(
                 "%s: shape '%s' (%s) is neither a triangle mesh nor one of the analytic shapes divided into "
                 "patches (%s); use a mesh instead (a 'ply'/'obj' file)."
@@ -102,7 +94,7 @@ class MeshTable:
             h = default_patch_size(scene)
         self.h = float(h)
         if parts is None:
-            parts = [_checked_mesh_part(m, h, subdivide, cluster, who) if _is_mesh(m) else analytic_part(m, h)
+            parts = [_checked_mesh_part(m, h, subdivide, cluster, who) if is_mesh(m) else analytic_part(m, h)
                      for m in self.shapes]
         self.parts = parts                 # numpy, per shape (mi_plugins.patches.mesh_parts), for refined()
         self.dark_rounds = []              # the dark splits that made it (mi_plugins.patches.darkness), kept by refined()
@@ -128,7 +120,7 @@ class MeshTable:
                            for k in range(3)], axis=1)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
         # back sides
-        two_sided = np.array([back_sides and _reflects_on_both_sides(s) for s in self.shapes], dtype=bool)
+        two_sided = np.array([back_sides and reflects_on_both_sides(s) for s in self.shapes], dtype=bool)
         backs = np.flatnonzero(two_sided[shape_index])
         back_of = np.full(self.front_count, self.NONE, dtype=np.uint32)
         back_of[backs] = self.front_count + np.arange(len(backs))
@@ -377,13 +369,6 @@ class MeshTable:
         return si
 
 
-#: the patch table of the last render (one entry for every integrator of the process): a
-#: display renders many views of one scene, and a table of a million triangles takes
-#: seconds to build. Held here, not by an integrator, which its scene holds (a reference
-#: cycle through C++ would keep every scene alive); this keeps the last scene alive only
-_LAST = []
-
-
 def _per_element(count, cells, rows):
     """(count, k) float64: ``rows`` at the elements ``cells``, zeros elsewhere."""
     out = np.zeros((count,) + rows.shape[1:])
@@ -408,83 +393,3 @@ def _join(parts, keys):
             part[key] = joined[key][start:start + n]
             start += n
     return joined
-
-
-def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None, dark_levels=0):
-    """The :class:`MeshTable` of ``scene`` with these settings, its patches split
-    ``dark_levels`` times where they lie partly in the dark or a surface cuts them
-    (:mod:`mi_plugins.patches.darkness`),
-    built again only when the scene object, its content (``mi_plugins.base.fingerprint``) or
-    the settings differ from the last call's; ``before_build()`` (e.g. a memory check that
-    predicts the patch count: seconds on a million triangles) is called only when a table
-    is built."""
-    from mi_plugins.patches.darkness import split_in_the_dark
-    from mi_plugins.base.fingerprint import scene_fingerprint
-    key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster),
-           int(dark_levels))
-    if not _LAST or _LAST[0][0] != key:
-        if before_build is not None:
-            before_build()
-        table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
-        _LAST[:] = [(key, split_in_the_dark(table, dark_levels))]
-    return _LAST[0][1]
-
-
-def patch_parameters(p):
-    """The patch parameters of a finite-element integrator, read with Params ``p``:
-    ``patch_size`` (None: :func:`default_patch_size`), ``subdivide`` and ``cluster``."""
-    size = p.float("patch_size", None, lo=0, lo_open=True, note="optional: default scene diagonal / %d"
-                   % tessellation.CELLS_PER_DIAGONAL)
-    return size, p.bool("subdivide", True), p.bool("cluster", True)
-
-
-def default_patch_size(scene):
-    """The scene's bounding-box diagonal (:func:`scene_bounds`) / tessellation.CELLS_PER_DIAGONAL."""
-    lo, hi = scene_bounds(scene)
-    return float(np.linalg.norm(hi - lo)) / tessellation.CELLS_PER_DIAGONAL
-
-
-def scene_bounds(scene):
-    """(min, max) corners (numpy float64) of the box around every shape of ``scene``.
-
-    Not ``scene.bbox()``: ``mi.load_dict`` (optimize=True) merges shapes that share a BSDF
-    into one ``Mesh`` whose ``bbox()`` is invalid, and ``scene.bbox()`` leaves it out
-    (Mitsuba 3.9.1: two 80 x 80 ``rectangle`` planes with one BSDF vanish from it), so a
-    size derived from it can be 5x too small. A mesh with an invalid box is bounded by
-    its vertices."""
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for shape in scene.shapes():
-        box = shape.bbox()
-        if box.valid():
-            points = np.array([box.min, box.max], dtype=np.float64)
-        elif _is_mesh(shape):
-            points = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
-        else:
-            continue
-        if len(points):
-            lo, hi = np.minimum(lo, points.min(axis=0)), np.maximum(hi, points.max(axis=0))
-    if not np.all(np.isfinite(lo)):
-        box = scene.bbox()
-        lo, hi = ((np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)) if box.valid()
-                  else (np.zeros(3), np.zeros(3)))
-    return lo, hi
-
-
-def sub_triangle(s, b1, b2):
-    """Index (see :func:`sub_triangles`) of the sub-triangle holding barycentric
-    coordinates (b1, b2) in a triangle split at level ``s`` (JIT arrays)."""
-    return sub_triangle_coords(s, b1, b2)[0]
-
-
-def sub_triangle_coords(s, b1, b2):
-    """(index, a, b): the sub-triangle holding (b1, b2) (:func:`sub_triangle`) and the
-    barycentric coordinates (a, b) of the point in it (weights of its corners 1 and 2,
-    in the order of :func:`sub_triangles`; clamped into the sub-triangle)."""
-    x, y = b1 * mi.Float(s), b2 * mi.Float(s)
-    j = dr.minimum(mi.UInt32(dr.maximum(y, 0.0)), s - 1)
-    i = dr.minimum(mi.UInt32(dr.maximum(x, 0.0)), s - 1 - j)
-    fx, fy = x - mi.Float(i), y - mi.Float(j)
-    inverted = (fx + fy > 1.0) & (i + j < s - 1)
-    a = dr.clip(dr.select(inverted, 1.0 - fx, fx), 0.0, 1.0)
-    b = dr.clip(dr.select(inverted, 1.0 - fy, fy), 0.0, 1.0 - a)
-    return j * (2 * s - j) + 2 * i + dr.select(inverted, 1, 0), a, b

@@ -26,6 +26,8 @@ from mi_plugins.patches import tessellation
 
 #: children per patch side (an octant of a cluster's cell; 4 on triangles and cells)
 CHILDREN = 8
+#: the default patch budget of a refined solution (``max_patches``), times the initial patches
+DEFAULT_BUDGET = 4
 #: the significance of a patch's variation: the upper tail of a normal beyond this many sigma
 Z = 4.0
 

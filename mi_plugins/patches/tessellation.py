@@ -30,6 +30,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base.queries import scene_bounds
+
 #: default patch size: the scene's bounding-box diagonal divided by this
 CELLS_PER_DIAGONAL = 24
 #: analytic shapes (class names as Mitsuba prints them) -> kind code (0: a mesh)
@@ -184,13 +186,6 @@ def area_share(kind, bounds):
     return (u1 - u0) * (v1 - v0)
 
 
-def cell_of(kind, nu, nv, uv):
-    """Patch index within its shape of the points with parameters ``uv`` (JIT arrays;
-    ``kind``, ``nu``, ``nv`` per lane)."""
-    iu, iv, _, _ = cell_coords(kind, nu, nv, uv)
-    return iv * nu + iu
-
-
 def cell_coords(kind, nu, nv, uv):
     """(iu, iv, fu, fv): the cell of the points with parameters ``uv`` and their fractions
     within it along u (the radius on a disk, whose rings have equal areas) and v, in 0 .. 1."""
@@ -214,3 +209,39 @@ def sample_cell(kind, bounds, sample):
     v = dr.select(kind == 3, dr.acos(dr.clip(dr.lerp(c0, c1, sample.y), -1.0, 1.0)) / dr.pi,
                   dr.lerp(v0, v1, sample.y))
     return mi.Point2f(u, v)
+
+
+def default_patch_size(scene):
+    """The scene's bounding-box diagonal (:func:`scene_bounds`) / CELLS_PER_DIAGONAL."""
+    lo, hi = scene_bounds(scene)
+    return float(np.linalg.norm(hi - lo)) / CELLS_PER_DIAGONAL
+
+
+def sub_triangle_coords(s, b1, b2):
+    """(index, a, b): the sub-triangle holding (b1, b2) and the
+    barycentric coordinates (a, b) of the point in it (weights of its corners 1 and 2,
+    in the order of :func:`mi_plugins.patches.mesh_parts.sub_triangles`; clamped into the sub-triangle)."""
+    x, y = b1 * mi.Float(s), b2 * mi.Float(s)
+    j = dr.minimum(mi.UInt32(dr.maximum(y, 0.0)), s - 1)
+    i = dr.minimum(mi.UInt32(dr.maximum(x, 0.0)), s - 1 - j)
+    fx, fy = x - mi.Float(i), y - mi.Float(j)
+    inverted = (fx + fy > 1.0) & (i + j < s - 1)
+    a = dr.clip(dr.select(inverted, 1.0 - fx, fx), 0.0, 1.0)
+    b = dr.clip(dr.select(inverted, 1.0 - fy, fy), 0.0, 1.0 - a)
+    return j * (2 * s - j) + 2 * i + dr.select(inverted, 1, 0), a, b
+
+
+def triangle_lattice(s):
+    """The s x s similar sub-triangles of a triangle as integer lattice corners (i, j)
+    (barycentric coordinates (s - i - j, i, j) / s), (s^2, 3, 2), with the parent's
+    winding, row by row: row j (j = 0 .. s - 1) starts at j (2s - j); in it the upright
+    triangle i is 2i, the inverted one 2i + 1. Integer corners give the points of an edge
+    shared by two parents the same two non-zero weights on both: bit-identical positions."""
+    j, i = (a.ravel() for a in np.meshgrid(np.arange(s), np.arange(s), indexing="ij"))
+    first = j * (2 * s - j) + 2 * i
+    corners = lambda *pts: np.stack([np.stack(p, axis=1) for p in pts], axis=1)
+    out = np.empty((s * s, 3, 2), dtype=np.int64)
+    up, inverted = i + j <= s - 1, i + j <= s - 2
+    out[first[up]] = corners((i, j), (i + 1, j), (i, j + 1))[up]
+    out[first[inverted] + 1] = corners((i + 1, j + 1), (i, j + 1), (i + 1, j))[inverted]
+    return out

@@ -69,6 +69,22 @@ class Steps:
         self.state.total += int(count)
         self.state.planned_averaged = self.count - self.state.burn_in
 
+    def lengthen_burn_in(self, burn_in):
+        """Make the burn-in ``burn_in`` iterations long, the averaged iterations after it
+        as many as planned (the total grows by the difference)."""
+        averaged = self.count - self.state.burn_in
+        self.extend(int(burn_in) - self.state.burn_in, restart_average=False)
+        self.state.burn_in = int(burn_in)
+        self.state.planned_averaged = averaged
+
+    def next_window(self, done, burn_in, window):
+        """After ``done`` iterations, run ``burn_in`` more of burn-in and a new averaged
+        window of ``window`` (``iterations()`` counts from 0 again): everything before the
+        window is burn-in."""
+        self.count = int(burn_in) + int(window)
+        self.state.total += int(burn_in) + int(window)
+        self.state.burn_in = int(done) + int(burn_in)
+
     def second_stage(self, count):
         for k in range(count):
             yield k

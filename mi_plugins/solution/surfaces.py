@@ -101,3 +101,8 @@ def reflectance_toward(bsdf, si, active):
     ok = mi.Bool(active) & (cos_sh * geometric_cosine(si, si.wi) > 0)
     wo = mi.Vector3f(0.0, 0.0, dr.select(cos_sh < 0, -1.0, 1.0))
     return dr.select(ok, mi.Color3f(bsdf.eval(mi.BSDFContext(), si, wo, ok)), 0.0)
+
+
+def patch_side(table, si):
+    """2 x patch + side of hits ``si``: side 0 is the one the geometric normal points to."""
+    return table.patch(si) * 2 + side_of(si)

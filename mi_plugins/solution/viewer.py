@@ -40,7 +40,7 @@ import zlib
 
 import numpy as np
 
-TEMPLATE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "viewer.html")
+TEMPLATE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "viewer.html")
 #: valid initial exposures (stops)
 EXPOSURE_RANGE = (-20.0, 20.0)
 HALF_MAX = 60000.0
@@ -137,17 +137,3 @@ def write_html(solution, path, scene, sensor=0, exposure=0.0, title=None):
     with open(path, "w", encoding="utf-8") as f:
         f.write(page)
     return path
-
-
-def view_files(solution_file, scene_file, output, sensor=0, exposure=0.0, defines=None):
-    """``mi-plugins view``: the page of the solution saved in ``solution_file`` for the scene
-    of ``scene_file`` (XML, with ``defines`` for its $parameters), written to ``output``."""
-    import mitsuba as mi
-    from mi_plugins.solution.solution import Solution
-    if not str(output).lower().endswith((".html", ".htm")):
-        raise ValueError("-o %s: the page's name must end in .html or .htm" % output)
-    for kind, path in (("solution", solution_file), ("scene", scene_file)):
-        if not os.path.isfile(path):
-            raise FileNotFoundError("%s file '%s' does not exist" % (kind, path))
-    scene = mi.load_file(scene_file, **(defines or {}))
-    return Solution.load(solution_file, scene).to_html(output, scene, sensor, exposure)

@@ -61,22 +61,6 @@ def _unshared_triangles(tri_vertices):
     return TriangleMesh(tri_vertices.reshape(-1, 3), np.arange(3 * f).reshape(f, 3), uvs)
 
 
-def triangle_lattice(s):
-    """The s x s similar sub-triangles of a triangle as integer lattice corners (i, j)
-    (barycentric coordinates (s - i - j, i, j) / s), (s^2, 3, 2), with the parent's
-    winding, row by row: row j (j = 0 .. s - 1) starts at j (2s - j); in it the upright
-    triangle i is 2i, the inverted one 2i + 1. Integer corners give the points of an edge
-    shared by two parents the same two non-zero weights on both: bit-identical positions."""
-    j, i = (a.ravel() for a in np.meshgrid(np.arange(s), np.arange(s), indexing="ij"))
-    first = j * (2 * s - j) + 2 * i
-    corners = lambda *pts: np.stack([np.stack(p, axis=1) for p in pts], axis=1)
-    out = np.empty((s * s, 3, 2), dtype=np.int64)
-    up, inverted = i + j <= s - 1, i + j <= s - 2
-    out[first[up]] = corners((i, j), (i + 1, j), (i, j + 1))[up]
-    out[first[inverted] + 1] = corners((i + 1, j + 1), (i, j + 1), (i + 1, j))[inverted]
-    return out
-
-
 def box(half_size=1.0):
     """Closed axis-aligned cube [-h, h]^3 with inward normals: 6 faces, 12 triangles.
 
