@@ -6,11 +6,12 @@ import mitsuba as mi
 from mi_plugins.base import limits, seeds, errors, queries
 from mi_plugins.render import checks
 from mi_plugins.render import burn_in
-from mi_plugins.render.core import MAX_ITERATIONS, CoreIntegrator
+from mi_plugins.render.core import HIDE_EMITTERS, MAX_ITERATIONS, CoreIntegrator
 from mi_plugins.render.frame import coverage
 from mi_plugins.render.camera import first_shown, unoccluded
 from mi_plugins.render.handoff import Handoff
 from mi_plugins.light.sources import sample_light_rays
+from mi_plugins.base.param_docs import Row, documented
 from mi_plugins.base.params import Params
 
 #: memory per chain at most (its ray, power, depth and random state, twice while a step
@@ -21,6 +22,20 @@ BYTES_PER_CHAIN = 256
 SPAWN_EPSILON = 1e-4
 
 
+#: the parameters of ``stochastic_ray``
+ROWS = (
+    Row("iterations", "int", "32", ">= 1 transport steps per chain (more when the burn-in is lengthened, below)"),
+    Row("burn_in", "int", "fitted to the scene, at least min(8, iterations - 1)",
+        "0 .. iterations - 1 first steps left out of the average; given, it is used as it is"),
+    Row("max_iterations", "int", "max(4096, iterations)",
+        ">= iterations: the most steps the burn-in fitting and the drift check may run"),
+    Row("max_depth", "int", "-1",
+        "-1 (unbounded) or >= 0, Mitsuba's convention (1 = emission only); chains restart when they reach it"),
+    HIDE_EMITTERS,
+)
+
+
+@documented(ROWS)
 class StochasticRayIntegrator(CoreIntegrator):
     r"""
     .. _integrator-stochastic_ray:
@@ -32,68 +47,29 @@ class StochasticRayIntegrator(CoreIntegrator):
     operator sends the whole power of L_{n-1} along ONE ray: restart from the lights with
     probability Phi_e / Phi_n (Phi_e: emitted power, Phi_n: power carried), otherwise
     continue from the last hit in a BSDF-sampled direction (the BSDF evaluated as
-    Mitsuba's path tracer evaluates it on the same path, so any Mitsuba BSDF, shading
-    normals, bump and normal maps and the ``simulated_area`` / ``directional_area``
-    emitters work, negative simulated emission included). Each step's image estimate
-    connects the new hit point to the camera (light tracing with direct pixel
-    contribution); the camera's own share is the emission of the first surface each
-    camera ray meets, and the light that surface passes on through delta and null lobes
-    (mirrors, glass, ``null``, ``mask``, the specular layer of ``plastic``), which no
-    connection reaches: continued there by Mitsuba's ``path`` (one BSDF sample per camera
-    sample). The image is the average of the steps after the burn-in. Many chains run in
-    lockstep, one Dr.Jit lane each, one fused kernel per step: no lane idles on short
-    paths.
+    Mitsuba's path tracer evaluates it on the same path: any Mitsuba BSDF, shading normals,
+    bump and normal maps, negative simulated emission). Each step's image estimate
+    connects the new hit point to the camera; the camera's own share is the emission of
+    the first surface each camera ray meets and the light it passes on through delta and
+    null lobes, which no connection reaches: continued there by Mitsuba's ``volpath``
+    (:mod:`mi_plugins.render.handoff`). The image is the average of the steps after the
+    burn-in. Many chains run in lockstep, one Dr.Jit lane each, one fused kernel per step.
 
     .. pluginparameters::
 
-     * - iterations
-       - int
-       - 32
-       - >= 1 transport steps per chain (more when the burn-in is lengthened, below)
-     * - burn_in
-       - int
-       - fitted to the scene, at least min(8, iterations - 1)
-       - 0 .. iterations - 1 first steps left out of the average; given, it is used as
-         it is
-     * - max_iterations
-       - int
-       - max(4096, iterations)
-       - >= iterations: the most steps the burn-in fitting and the drift check may run
-     * - max_depth
-       - int
-       - -1
-       - -1 (unbounded) or >= 0, Mitsuba's convention (1 = emission only); chains
-         restart when they reach it, so truncated analytic values can be checked
-     * - hide_emitters
-       - bool
-       - false
-       - do not show directly visible emitters
-
-    **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x width x height chains of
-    ``iterations`` steps each: work is linear in k (and in ``iterations``).
-    **Burn-in:** the average misses the power defect of the paper's eq. 20, about
-    lambda^b / (1 - lambda)^2 after b steps of burn-in, lambda the scene's effective
-    albedo. By default the burn-in is fitted to the scene: lambda is measured from the
-    chains (power continued over power carried, in the second half of the first
-    min(8, iterations - 1) steps) and the burn-in made long enough for a defect below
-    1e-3 (an albedo-1 room lit by a weak emitter needs over a thousand steps; the
-    furnace with albedo 0.5 about 12). After the planned steps a drift check compares
-    the image mean of the first and second half of the averaged steps
-    (:mod:`mi_plugins.render.burn_in`); while it still drifts, the steps so far become
-    burn-in and twice as many are averaged. Where ``max_iterations`` leaves too little
-    room for either, the render is refused (``NotConverged``, naming the measured defect
-    and the steps needed). **Sensors:** ``perspective``,
-    ``thinlens`` and ``batch`` (light paths connect to them); others (``orthographic``,
-    ``radiancemeter``, ``irradiancemeter``, ``distant``) are refused, naming the sensor.
-    **Refused:** participating media (use ``volpath``), integrators that call it per
-    camera ray (``aov``, ``moment``), and a textured ``area`` light that Mitsuba samples
-    wrongly (on a ``flip_normals`` rectangle, or a mesh whose uv map does not cover the
-    unit square once) in a scene with mirror, glass or null surfaces, whose light the
-    camera sees through Mitsuba's ``volpath``. Light rays sample textured area lights
-    uniformly on their shape (``mi_plugins.light.sources``). Light splats go through the film's reconstruction
-    filter, with the part of a wide filter beyond the crop window compensated
-    (Mitsuba's ``ptracer`` darkens the border pixels there, by ~10 % with the default
-    Gaussian filter).
+    **``spp``:** ``mi.render(scene, spp=k)`` runs k x width x height chains of
+    ``iterations`` steps each. **Burn-in** (:mod:`mi_plugins.render.burn_in`): the average
+    misses the power defect of the paper's eq. 20, about lambda^b / (1 - lambda)^2 after b
+    steps of burn-in, lambda the scene's effective albedo, measured from the chains; the
+    burn-in is made long enough for a defect below 1e-3, and after the planned steps a
+    drift check compares the halves of the averaged steps (while they differ, the steps so
+    far become burn-in and twice as many are averaged). Where ``max_iterations`` leaves
+    too little room, the render is refused (``NotConverged``). **Sensors:**
+    ``perspective``, ``thinlens``, ``batch`` (light paths connect to them); others are
+    refused, naming the sensor. **Refused:** participating media, wrapping integrators
+    (``aov``, ``moment``), and a textured ``area`` light that Mitsuba samples wrongly in a
+    scene whose light the camera sees through ``volpath``. Light splats go through the
+    film's reconstruction filter, its part beyond the crop window compensated.
 
     .. code-block:: python
 

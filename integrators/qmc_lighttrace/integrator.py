@@ -11,11 +11,13 @@ import numpy as np
 
 from mi_plugins.patches import darkness, refinement
 from mi_plugins.base import sequences, seeds
+from mi_plugins.base.param_docs import documented
 from mi_plugins.render import checks
 from mi_plugins.render.frame import coverage
 from mi_plugins.solution.display import edge_pixels, with_edges
 from mi_plugins.solution.integrator import SolutionIntegrator, solution_meta
 from mi_plugins.patches.neighbours import share_with_neighbours
+from mi_plugins.integrators.qmc_lighttrace import parameters
 from mi_plugins.integrators.qmc_lighttrace.checks import check_gather_lanes
 from mi_plugins.solution.gather import CameraPaths, FlatTables
 from mi_plugins.integrators.qmc_lighttrace.particles import dimensions, trace_range
@@ -35,6 +37,7 @@ MAX_PATHS = 1 << 32
 MAX_GATHER = 1024
 
 
+@documented(parameters.ROWS)
 class QMCLightTraceIntegrator(SolutionIntegrator):
     r"""
     .. _integrator-qmc_lighttrace:
@@ -43,189 +46,38 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
     -----------------------------------------------------------------
 
     Preprocess: N particle paths from the lights (surfaces, environment, delta lights),
-    path i driven by point i of a (4 + 3M)-dimensional sequence (0-1: light choice and
-    position, 2-3: direction, then lobe choice and direction of each of the first M =
-    ``sequence_depth`` bounces; later bounces pseudo-random with Russian roulette, so
-    paths are unbounded and unbiased). A particle deposits its irradiance on every
-    *purely diffuse* patch side it hits (only a ``DiffuseReflection`` lobe, no
-    ``bumpmap``/``normalmap``: the radiance they reflect is the same in every direction),
+    path i driven by point i of a (4 + 3M)-dimensional sequence (light choice and
+    position, direction, then lobe and direction of each of the first M =
+    ``sequence_depth`` bounces; later bounces pseudo-random with Russian roulette: paths
+    are unbounded and unbiased). A particle deposits its irradiance on every *purely
+    diffuse* patch side it hits (whose reflected radiance is the same in every direction),
     with the shading-normal factor |cos_sh| / |cos_geo|; other surfaces store nothing and
     scatter it on with any BSDF, weighted as Mitsuba's ``path`` weighs the same path.
-    Deposits are kept per hit count (layers) in 64-bit signed fixed point (negative
-    emission included; a seed gives the same deposits every time); optional adaptive
-    termination (section 4: batches until the area-weighted change Delta E, relative to
-    the emitted power / pi, stays below ``epsilon`` for ``patience`` batches).
+    Deposits are kept per hit count (layers) in 64-bit fixed point (a seed gives the same
+    deposits every time); optional adaptive termination (section 4: batches until the
+    area-weighted change Delta E, relative to the emitted power / pi, stays below
+    ``epsilon`` for ``patience`` batches).
     Render: eye rays from the sensor's sampler, through mirrors and glass to the visible
-    point x; there emission + one light sample + SR BSDF (on diffuse x: cosine) gather
-    samples, by multiple importance sampling. A gather sample reaching a purely diffuse
-    y reads y's direct light (light and BSDF sample, MIS) plus the stored light of
-    particle hits k >= 2, x rho(y) / pi (Keller's L_d computed separately, at y: the
-    patches never average the direct light's steep gradients); a non-diffuse y, or a y on
-    a patch at the mouth of a gap narrower than the patch (a ceiling patch reaching past
-    the rim of a lamp facing it: its one value would mix the gap's trapped light with the
-    room's, ``mi_plugins.patches.gaps``), continues the path (light sample, BSDF sample) to the
-    next diffuse surface. ``max_depth`` is
-    Mitsuba's: every estimate holds exactly the paths of at most D segments (the table
-    read at y holds the particle hits that fit in the depth the camera path has left).
-    The eye rays are traced in passes of at most 2^22 gather lanes (eye rays x SR, about
-    110 bytes each), so the memory stays bounded whatever the samples per pixel.
+    point x; there emission + one light sample + SR BSDF gather samples, by multiple
+    importance sampling. A gather sample reaching a purely diffuse y reads y's direct
+    light (light and BSDF sample, MIS) plus the stored light of particle hits k >= 2,
+    x rho(y) / pi; a non-diffuse y continues the path to the next diffuse surface.
+    ``max_depth`` is Mitsuba's: every estimate holds exactly the paths of at most D
+    segments. Eye rays are traced in passes of at most 2^22 gather lanes.
 
     .. pluginparameters::
 
-     * - max_depth
-       - int
-       - -1
-       - Mitsuba's: -1 unbounded, D >= 0 paths of at most D segments (1: emission only).
-         A finite D keeps max(D - 2, 1) deposit layers: D x patches is limited by memory
-     * - sequence
-       - string
-       - ``'sobol'``
-       - ``'sobol'``, ``'halton'``, ``'faure'``, ``'lcg'`` (drand48), ``'independent'``
-         (PCG32)
-     * - scramble
-       - bool
-       - true
-       - randomise the sequence with the scramble of ``mi_plugins.base.sequences`` (the render
-         seed selects it); ``false``: the plain sequence (and a fixed stream beyond it)
-     * - sequence_depth
-       - int
-       - 3
-       - Keller's M >= 0: bounces drawn from the sequence (4 + 3M dimensions must fit:
-         Halton/Faure M <= 84); later bounces play Russian roulette (survival: the
-         bounce's largest weight, at most 0.99). No truncation. The default measures best:
-         the roulette spares the deep bounces' little light: 1.45x the efficiency
-         (inverse variance per second) of the patches of M = 10 (Keller's truncation
-         depth) on the benchmark's Cornell boxes
-     * - samples
-       - int
-       - 100000
-       - N paths, 1 .. 2^32 (the particle index is 32-bit; when ``epsilon`` is not given)
-     * - epsilon
-       - float
-       - none
-       - > 0: adaptive termination threshold on Delta E
-     * - batch
-       - int
-       - 1000
-       - Delta N, 1 .. 2^32
-     * - patience
-       - int
-       - 2
-       - T >= 1 consecutive batches below ``epsilon``
-     * - max_samples
-       - int
-       - 10^7
-       - 1 .. 2^32, cap for the adaptive termination
-     * - gather_samples
-       - int
-       - 4
-       - SR gather samples per eye ray, 1 .. 1024
-     * - share_neighbors
-       - bool
-       - false
-       - average the gather samples' results with the 8 neighbouring pixels seeing the
-         same side of the same diffuse patch (a smoothing bias)
-     * - mirror_depth
-       - int
-       - -1
-       - -1: follow delta and null lobes as far as ``max_depth`` allows; k >= 0: at most
-         k of them per eye ray and per gather sample (truncates: darker than ``path``)
-     * - patch_size
-       - float
-       - scene diagonal / 24
-       - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
-         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64).
-         Stored irradiance is constant per patch: a smaller h lowers the discretisation
-         bias of the indirect light and raises the patch count (memory, noise per patch)
-     * - subdivide
-       - bool
-       - true
-       - split long mesh triangles (above); false keeps the triangles as modelled (the
-         papers' patches)
-     * - cluster
-       - bool
-       - true
-       - group mesh triangles much smaller than the patch size (longest edge below h / 2)
-         into patches of about h by grid cell and normal direction (within about 45
-         degrees), so that the patch count follows the surface area, not the triangle
-         count (``mi_plugins.patches.mesh_parts``); false: one patch per small triangle
-     * - dark_levels
-       - int
-       - 2
-       - >= 0: split the patches that lie partly in the dark (under an object resting on
-         them, inside a closed object, past a floor or ceiling they run through) or that a
-         surface standing on them cuts (a thin panel on a floor) this many times along the
-         boundary, so that the solution's displays neither show the lit part darkened by
-         the dark one nor carry light past the panel (``mi_plugins.patches.darkness``); 0: the patches as they are
-     * - display
-       - string
-       - ``'gather'``
-       - how the image is made: ``'gather'`` (the estimate above); ``'smooth'``,
-         ``'patches'``, ``'baked'``: from the view-independent solution (the particles'
-         irradiance per patch side, ``mi_plugins.solution.solution``). Any display keeps the
-         solution for every later render of the scene with the same seed, whatever the
-         sensor or spp. ``'smooth'``: direct light by next-event estimation plus the
-         stored light interpolated from per-vertex values, no gather ray; ``'patches'``:
-         the flat patch values; ``'baked'``: the interpolated patch radiance (max_depth
-         -1); glossy and specular visible points gather as above (``integrators.display``)
-     * - emitter_samples
-       - int
-       - 8
-       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every
-         display (the gather's and the solution's): the sample's film position shifted by
-         the points of a rank-1 lattice, in the pixels on a visible emitter's edge only
-         (found by one such set of rays per pixel: where they see different emission).
-         There a pixel sees the emitter or not by chance, a noise every camera sample of
-         ``path`` carries; 8 rays cut it 14-25 fold with a box filter (7 fold with a
-         Gaussian one) at the cost of 7 camera rays there. 1: off
-     * - preview_every
-       - int
-       - 0
-       - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set, after every
-         N of the particle phase's 8 ranges the image of the solution so far (smooth
-         display, one sample per pixel)
-     * - refine
-       - bool
-       - false
-       - adaptive subdivision: after each of the first 4 of the particle phase's 8 ranges,
-         split the patches inside which the irradiance varies (their children's estimates
-         differ from the patch's beyond their noise together, at 4 sigma, and a child's by
-         more than ``refine_threshold``: shadow boundaries, the pools of spot lights;
-         ``mi_plugins.patches.refinement``), the largest errors first; a child keeps what its
-         parent measured there. Not with ``epsilon``
-     * - refine_threshold
-       - float
-       - 0.1
-       - > 0: the relative variation that splits a patch
-     * - min_patch_size
-       - float
-       - patch_size / 4
-       - > 0: patches are not split below this size
-     * - max_patches
-       - int
-       - 4 x the patches before refining
-       - >= 1: splits stop at this many patches
-     * - hide_emitters
-       - bool
-       - false
-       - hide directly visible emitters as Mitsuba does: eye rays pass through area
-         emitters and do not see the environment
-
     Particles and light samples take textured ``area`` lights uniformly on their shape
-    (``mi_plugins.light.sources``: Mitsuba's own sampling of them is wrong on ``flip_normals``
-    rectangles and on meshes whose uv map does not cover the unit square once).
-    Patches: the triangles of meshes (long ones split, see ``patch_size``), cells of
-    ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` (``mi_plugins.patches.meshtable``).
-    Refused before any work, by name: other shapes, participating media, emitters that
-    emit in one direction only (``directionalarea``: no light sample reaches them), and
-    deposit layers x patches above 2^24 or half the available memory. After a render,
-    ``integrator.irradiance`` (numpy (layers, K, 2, 3): hit-count layer, patch, side (0:
-    the one its normal points to), RGB), ``triangle_areas``, ``patch_shapes`` (shape id
-    per patch), ``paths_used`` and ``delta_e_history`` hold the preprocessing result (none
-    is traced for a render with ``max_depth`` <= 3, which reads no stored light);
+    (:mod:`mi_plugins.light.sources`). Patches: the triangles of meshes and the cells of
+    ``rectangle``, ``disk``, ``sphere`` and ``cylinder``. **Refused before any work**, by
+    name: other shapes, participating media, emitters that emit in one direction only
+    (``directionalarea``: no light sample reaches them), and deposit layers x patches
+    above 2^24 or half the available memory. After a render ``integrator.irradiance``
+    (numpy (layers, K, 2, 3): hit-count layer, patch, side, RGB), ``triangle_areas``,
+    ``patch_shapes``, ``paths_used`` and ``delta_e_history`` hold the preprocessing result;
     ``integrator.preprocess(scene, seed)`` runs it alone and also sets
-    ``triangle_radiance`` (numpy (K, 2, 3): L0 + reflected, the particles' light reflected
-    by the BSDF at the patch centroid, 0 on non-diffuse patches) and ``reflected_radiance``.
+    ``triangle_radiance`` (numpy (K, 2, 3)) and ``reflected_radiance``. Measurements behind
+    the defaults: ``docs/qmc.md``.
 
     .. code-block:: python
 

@@ -5,6 +5,7 @@ import numpy as np
 
 from mi_plugins.patches import gaps
 from mi_plugins.base import seeds
+from mi_plugins.base.param_docs import documented
 from mi_plugins.solution import display
 from mi_plugins.render.core import MAX_ITERATIONS
 from mi_plugins.render.frame import Frame
@@ -13,7 +14,7 @@ from mi_plugins.patches import refinement
 from mi_plugins.integrators.ray_bundle import checks, refine, split
 from mi_plugins.integrators.ray_bundle.directions import SEQUENCES, DirectionStream
 from mi_plugins.integrators.ray_bundle.estimators import ESTIMATORS
-from mi_plugins.integrators.ray_bundle import frozen
+from mi_plugins.integrators.ray_bundle import frozen, parameters
 from mi_plugins.integrators.ray_bundle import memory
 from mi_plugins.integrators.ray_bundle.memory import available_memory
 from mi_plugins.integrators.ray_bundle.run import Run, touch
@@ -41,6 +42,7 @@ STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
 
 
+@documented(parameters.ROWS)
 class RayBundleIntegrator(SolutionIntegrator):
     r"""
     .. _integrator-ray_bundle:
@@ -49,267 +51,38 @@ class RayBundleIntegrator(SolutionIntegrator):
     ---------------------------------------------------------
 
     Szirmay-Kalos, sections 5-6: finite-element stochastic iteration over the patches of
-    the scene's surfaces (see Scenes below). Each patch keeps only its radiance in the
-    current global direction w_m (and -w_m when ``bidirectional``). Each iteration
-    transfers all patch radiances along w_m with a bundle of ``resolution`` x
-    ``resolution`` parallel lines across the scene's bounding sphere (jittered every
-    iteration; every line walks ALL its successive hits, continuing 1e-6 x the scene's
-    scale beyond each, so that a lamp 0.1 mm under a ceiling is not skipped, and
+    the scene's surfaces. Each patch keeps its radiance in the current global direction
+    w_m (and -w_m when ``bidirectional``). Each iteration transfers every patch's radiance
+    along w_m with a bundle of ``resolution`` x ``resolution`` parallel lines across the
+    scene (jittered every iteration; every line walks all its successive hits, and
     consecutive hits facing each other exchange radiance), picks a new random direction
     w_{m+1} and reflects: L_new[i] = Le_i(w_{m+1}) + 4 pi f_i(w_m, w_{m+1}) sum_j
-    A(i,j,w_m) / A_i L[j] (2 pi per direction when bidirectional). The source term (the
-    emission, or with ``first_shot`` the direct light) is evaluated where a line leaves
-    a surface, the carried part per patch at a fresh uniformly random point of each patch
-    every iteration (unbiased patch averages: textured emission and albedo work). Every
-    kind of iteration and camera pass is traced once and replayed (``dr.freeze``; a later
-    render of the same scene and settings replays too). Memory: O(chains x (patches +
-    resolution^2)), no per-pair storage; every size is checked before any work against
-    the available memory and documented maxima (``memory.py``: at most 2^20 iterations
-    per render, 2^31 lanes, lines and camera samples per pass; a camera pass takes as
-    many chains as fit), with a clear error naming what fits.
-
-    **Defaults** are the settings that measure best at equal time on the Cornell box and
-    the closed diffuse scenes (``docs/real_scenes.md``): 64 chains of 32 x 32 lines,
-    ``first_shot`` and ``average_diffuse``, 16 iterations per unit of ``spp``, the burn-in
-    extended where the chains still converge (``adaptive``).
-    **Paper settings** (sections 5-6, the figure-7 reproduction): ``chains`` 1,
-    ``resolution`` 128, ``iterations`` 64, ``first_shot`` false, ``average_diffuse`` false
-    (``PAPER_SETTINGS`` in this module).
+    A(i,j,w_m) / A_i L[j] (2 pi per direction when bidirectional). The source term is
+    evaluated where a line leaves a surface, the carried part at a fresh uniformly random
+    point of each patch every iteration (unbiased patch averages). Many chains run in
+    lockstep, one kernel per iteration, traced once and replayed (``dr.freeze``). Memory:
+    O(chains x (patches + resolution^2)), every size checked before any work
+    (:mod:`.memory`). The paper's settings: ``PAPER_SETTINGS``.
 
     .. pluginparameters::
 
-     * - iterations
-       - int
-       - 16
-       - >= 1 global directions per unit of ``spp``
-     * - burn_in
-       - int
-       - min(8, iterations - 1)
-       - 0 .. iterations - 1 iterations left out of the image average
-     * - resolution
-       - int
-       - 32
-       - >= 1 lines per side of the bundle
-     * - chains
-       - int
-       - 64, fewer where 64 would need over a quarter of the available memory
-       - >= 1 chains (own directions, own patch radiances) advanced in lockstep by one
-         kernel per iteration; the image averages them. 1 is the paper's algorithm;
-         16-64 chains use the cores far better when ``resolution^2`` and the triangle
-         count are small
-     * - bidirectional
-       - bool
-       - true
-       - use every line in both directions (A(i,j,w) = A(j,i,-w))
-     * - first_shot
-       - bool
-       - true
-       - direct light by next-event estimation (one light sample, plus one BSDF sample,
-         MIS, near emitting shapes and on BSDFs not purely diffuse) at patch points,
-         line hits (``point_sources``) and camera samples; the bundles carry only the
-         reflected radiance L - Le; purely diffuse patches share one running mean per
-         side across the chains. Unbiased; far less noisy where direct
-         light dominates. false is the paper's algorithm
-     * - estimate
-       - string
-       - ``'gather'``
-       - ``'gather'``: at each pixel's visible point, reflect the stored radiance
-         arriving along +-w_m toward the eye (the paper's per-pixel variant);
-         ``'patch'``: the visible patch's incoming radiance of the bundle, reflected
-         toward the eye
-     * - direction_sequence
-       - string
-       - ``'independent'``
-       - ``'independent'``, ``'halton'``, ``'hammersley'``, ``'pi'`` (q_n = {(pi - 2)
-         q_{n-1}} mod 100000). Only random directions are correct: Halton and
-         Hammersley are 1-uniform and bias the result (paper 6.1; kept to reproduce it)
-     * - stratify_chains
-       - bool
-       - true with ``'independent'``
-       - every iteration the chains' directions form one evenly spread set (spherical
-         Fibonacci), freshly rotated and dealt in a fresh random order: each chain stays
-         independent and uniform, the chain average has less noise. ``true`` with another
-         ``direction_sequence`` is an error
-     * - average_diffuse
-       - bool
-       - true
-       - final gathering from averaged diffuse patches: all chains' values of a purely
-         diffuse patch in all averaged iterations estimate one number; their per-patch
-         average replaces the chain's value in the image, made after the iterations (one
-         pass per averaged iteration). Unbiased; far less noise. false is the paper's
-     * - share_diffuse
-       - bool
-       - true
-       - every iteration a purely diffuse patch side reflects the mean of what all
-         chains' bundles brought it (it reflects the same radiance in every direction,
-         so each chain's value estimates one number). Unbiased, and where a patch meets
-         few lines per chain and iteration (small patches, few chains, closed rooms) the
-         only way to an estimate that is not skewed: with false the light of k bounces
-         is a product of k mostly-zero values and a render typically reads low (a closed
-         diffuse cube at patch size 0.1: -5.5 %, with it -0.5 %, its burn-in transient).
-         Chains then share their past: the solution has no per-patch error. false keeps
-         the chains independent (with one chain it changes nothing)
-     * - gather_nee
-       - bool
-       - true
-       - with ``first_shot`` and ``average_diffuse``: the direct light of each gathered
-         point by next-event estimation (exact where it varies within a patch). false:
-         part of the patch average, exact where only the whole radiance is constant per
-         patch (the Bekaert box: 0.6 % low with true)
-     * - patch_size
-       - float
-       - scene diagonal / 24; with ``display`` 'gather' at least 2 x the line spacing
-       - > 0: the patch size h. Analytic shapes are divided into cells of about h x h,
-         mesh triangles longer than sqrt(2) h into s x s similar sub-triangles (s <= 64),
-         whatever the modelling. Radiance is constant per patch: a smaller h lowers the
-         discretisation bias (``mi.cornell_box()``: -0.8 % at the default 0.144, -0.5 %
-         at 0.08) and raises the patch count (memory, noise per patch)
-     * - subdivide
-       - bool
-       - true
-       - split long mesh triangles (above); false keeps the triangles as modelled (the
-         papers' patches)
-     * - cluster
-       - bool
-       - true
-       - group mesh triangles much smaller than the patch size (longest edge below h / 2)
-         into patches of about h by grid cell and normal direction (within about 45
-         degrees), so that the patch count follows the surface area, not the triangle
-         count (``mi_plugins.patches.mesh_parts``); false: one patch per small triangle
-     * - dark_levels
-       - int
-       - 2
-       - >= 0: split the patches that lie partly in the dark (under an object resting on
-         them, inside a closed object, past a floor or ceiling they run through) or that a
-         surface standing on them cuts (a thin panel on a floor) this many times along the
-         boundary, so that the solution's displays neither show the lit part darkened by
-         the dark one nor carry light past the panel (``mi_plugins.patches.darkness``); 0: the patches as they are
-     * - hide_emitters
-       - bool
-       - false
-       - do not show directly visible emitters
-     * - max_depth
-       - int
-       - -1
-       - -1 (unbounded) or 0 .. 64, Mitsuba's meaning (1: emission only, 2: direct
-         light); the chains keep every bounce order apart (memory x orders), the burn-in
-         is at least the orders - 1, and the image reads the orders each path may reach
-     * - delta_surfaces
-       - string
-       - ``'refuse'``
-       - ``'refuse'``: a purely specular surface (``conductor``, ``dielectric``) is
-         refused (the bundles cannot pass light on through it); ``'camera_only'``: render
-         anyway, the camera seeing through it, with a RuntimeWarning naming the shapes
-     * - point_sources
-       - bool
-       - true
-       - the source term a line carries (the direct light with ``first_shot``, else the
-         emission) evaluated where the line leaves the surface (one light sample per
-         hit, and a BSDF sample where it is needed): exact where it varies within a
-         patch (shadows, a lamp 1 cm under a ceiling: +92 % with false; spots on large planes: -4 %). false: the
-         patch's value, the shared running mean of its direct light: far less noise
-         (RMSE halved in the furnace sphere mesh), exact only where the radiance is
-         constant per patch (the analytic constant-radiance scenes)
-     * - display
-       - string
-       - ``'gather'``
-       - how the image is made: ``'gather'`` (the estimate above: the bundles' radiance
-         reflected at each pixel's visible point, renders solved anew); ``'smooth'``,
-         ``'patches'``, ``'baked'``: from the view-independent solution (the irradiance
-         every patch side receives from the bundles, averaged over chains and iterations:
-         ``mi_plugins.solution.solution``), kept for every later render of the scene with the same
-         seed, whatever the sensor or spp. ``'smooth'``: direct light by next-event
-         estimation plus the solution interpolated from per-vertex values;
-         ``'patches'``: the flat patch values; ``'baked'``: the interpolated patch
-         radiance (max_depth -1); glossy and specular visible points gather through to
-         the next diffuse surface (``integrators.display``). There ``spp`` is the display's
-         camera samples per pixel and the solve runs ``iterations`` global iterations
-     * - emitter_samples
-       - int
-       - 8
-       - 1 .. 64: camera rays per camera sample for the emission seen directly, in every
-         display (the gather's and the solution's): the sample's film position shifted by
-         the points of a rank-1 lattice, in the pixels on a visible emitter's edge only
-         (found by one such set of rays per pixel: where they see different emission).
-         There a pixel sees the emitter or not by chance, a noise every camera sample of
-         ``path`` carries; 8 rays cut it 14-25 fold with a box filter (7 fold with a
-         Gaussian one) at the cost of 7 camera rays there. 1: off
-     * - preview_every
-       - int
-       - 0
-       - >= 0: with ``integrator.preview_callback = f(image, done, total)`` set and a
-         display from the solution, every N iterations of a solve (the burn-in's
-         included: its own running average until the averaged iterations begin) the
-         image of the solution so far (one sample per pixel)
-     * - refine
-       - bool
-       - false
-       - adaptive subdivision, with a display from the solution: a pilot half of the
-         averaged iterations measures what the lines bring to the children of every patch
-         (level-2 sub-triangles, cell quadrants, cluster octants); the patches inside which
-         it varies (its children's differences beyond their noise together, at 4 sigma,
-         and a child differing from the patch by more than ``refine_threshold``: shadow
-         boundaries, spot pools) split, the largest errors first, and the solve goes on on
-         the refined patches from the pilot's state (a child's radiance its parent's;
-         ``mi_plugins.patches.refinement``), 2 iterations of burn-in, then the averaged ones
-     * - refine_threshold
-       - float
-       - 0.1
-       - > 0: the relative variation that splits a patch
-     * - min_patch_size
-       - float
-       - patch_size / 4
-       - > 0: patches are not split below this size
-     * - max_patches
-       - int
-       - 4 x the patches before refining
-       - >= 1: splits stop at this many patches
-     * - adaptive
-       - bool
-       - true
-       - after the averaged iterations, predict the average's bias from the chains (their
-         reflected share of the power gives the contraction ratio; the growth between the
-         halves of the average) and, above 1 %, extend the burn-in by what the prediction
-         asks for; with false a RuntimeWarning gives the numbers instead
-     * - max_iterations
-       - int
-       - 8 x ``iterations`` x spp
-       - >= 1: the most iterations the extended burn-in may reach; a render that would
-         need more is refused (``NotConverged``, naming the iterations it needs) instead
-         of returning an image darker than the 1 % the prediction allows
-
-    **``spp`` mapping:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global
-    iterations of every chain (``burn_in`` once); every averaged iteration traces one
-    camera sample per pixel and chain, drawn from the sensor's sampler: work is linear in
-    k and in ``chains``. With ``average_diffuse`` those camera samples are traced in the
-    final gathering after the iterations (and also during them when the scene has
-    non-diffuse patches); ``iteration_count(spp)`` and the progress bar count both.
-    Camera rays are followed through purely specular surfaces to the first non-delta one.
-    **Scenes:** patches are the triangles of meshes (long ones split, see ``patch_size``)
-    and cells of the analytic ``rectangle``, ``disk``, ``sphere`` and ``cylinder`` along
-    their own uv; other shapes (instances, curves, ellipsoids, SDF grids) are refused.
-    Orientation is Mitsuba's (winding, ``flip_normals``): one-sided BSDFs send and receive
-    on their front only, two-sided ones (``twosided``) have a patch per side. The
-    environment emitter (``constant``, ``envmap``) lights the patches through the bundles
-    (with ``first_shot`` by next-event estimation) and is seen by the camera; delta lights
-    (``point``, ``spot``, ``directional``) need ``first_shot=true`` (an error says so).
-    **Refused before any work** (``mi_plugins.base.errors.Unsupported``, naming the plugin,
-    the shape, why and what to use instead): participating media; BSDFs with a null lobe
-    (``null``, ``mask``, ``thindielectric``, ``hair``, the polarizers), which the lines
-    cannot cross; BSDFs that transmit (``roughdielectric``, ``principledthin``); purely
-    specular surfaces (see ``delta_surfaces``); a lamp facing a surface closer than half
-    the patch size (a lamp turned up under a ceiling: the light trapped between them would
-    leave as patch averages, ``mi_plugins.patches.gaps``). The delta lobe of a mixed BSDF (the
-    specular layer of ``plastic``) is handed to Mitsuba's ``path`` at the camera's visible
-    point (refused with a textured ``area`` light that Mitsuba samples wrongly: on a
-    ``flip_normals`` rectangle, or a mesh whose uv map does not cover the unit square
-    once), and reflects the direct light into the bundles (``first_shot``'s BSDF
-    sample). Next-event estimation samples textured area lights uniformly on their shape
-    (``mi_plugins.light.sources``). The radiance carried by the bundles is constant per patch: where it varies
-    within a patch the result is its patch average (exact in the furnace and
-    constant-radiance cases, and on spheres, whose point-to-patch form factor is the same
-    for every receiving point); a smaller ``patch_size`` (or a higher ``resolution``,
-    which sets the default) lowers that bias.
+    **``spp``:** ``mi.render(scene, spp=k)`` runs k x ``iterations`` global iterations of
+    every chain (``burn_in`` once); every averaged iteration traces one camera sample per
+    pixel and chain, from the sensor's sampler (with ``average_diffuse``, in the final
+    gathering after the iterations). With a display from the solution, ``spp`` is the
+    display's camera samples per pixel and the solve runs ``iterations`` global iterations.
+    **Scenes:** patches are the triangles of meshes and the cells of ``rectangle``,
+    ``disk``, ``sphere`` and ``cylinder``; orientation is Mitsuba's (winding,
+    ``flip_normals``); ``twosided`` surfaces have a patch per side. The environment lights
+    the patches through the bundles; delta lights need ``first_shot``. Camera rays are
+    followed through purely specular surfaces, and the delta lobe of a mixed BSDF is
+    handed to Mitsuba's ``volpath`` (:mod:`mi_plugins.render.handoff`).
+    **Refused before any work** (``Unsupported``, naming the plugin, the shape and what to
+    use instead): participating media; BSDFs with a null lobe or that transmit, which the
+    lines cannot cross; purely specular surfaces (see ``delta_surfaces``); shapes without
+    patches. The radiance carried is constant per patch: where it varies within a patch
+    the result is the patch average (a smaller ``patch_size`` lowers that bias).
+    Measurements behind the defaults: ``docs/stochastic_iteration.md``.
 
     .. code-block:: python
 

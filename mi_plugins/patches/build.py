@@ -2,6 +2,7 @@
 lie partly in the dark (:mod:`mi_plugins.patches.darkness`), and the patch parameters that
 choose its resolution."""
 from mi_plugins.base.fingerprint import scene_fingerprint
+from mi_plugins.base.param_docs import Row
 from mi_plugins.patches import tessellation
 from mi_plugins.patches.darkness import split_in_the_dark
 from mi_plugins.patches.meshtable import MeshTable
@@ -29,6 +30,20 @@ def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, 
         table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
         _LAST[:] = [(key, split_in_the_dark(table, dark_levels))]
     return _LAST[0][1]
+
+
+#: the patch parameters of the finite-element integrators, read by :func:`patch_parameters`
+PATCH_ROWS = (
+    Row("patch_size", "float", "scene diagonal / 24",
+        "> 0: the patch size h. Analytic shapes are divided into cells of about h x h, mesh triangles longer "
+        "than sqrt(2) h into s x s similar sub-triangles (s <= 64). The stored light is constant per patch: a "
+        "smaller h lowers the discretisation bias and raises the patch count"),
+    Row("subdivide", "bool", "true", "split long mesh triangles (above); false keeps the triangles as modelled"),
+    Row("cluster", "bool", "true",
+        "group mesh triangles much smaller than the patch size (longest edge below h / 2) into patches of about "
+        "h by grid cell and normal direction, so that the patch count follows the surface area, not the "
+        "triangle count (``mi_plugins.patches.mesh_parts``); false: one patch per small triangle"),
+)
 
 
 def patch_parameters(p):

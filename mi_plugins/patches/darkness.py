@@ -42,6 +42,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base.param_docs import Row
+
 from mi_plugins.base.sequences import hash32
 
 #: points per patch side (a 4 x 4 stratified grid)
@@ -250,6 +252,16 @@ def split_recorded(table, split):
     table = table.refined(split)[0]
     table.dark_rounds = rounds
     return table
+
+
+#: ``dark_levels``, read by :func:`read_levels`
+DARK_ROWS = (
+    Row("dark_levels", "int", "2",
+        ">= 0: split the patches that lie partly in the dark (under an object resting on them, inside a closed "
+        "object, past a surface they run through), that a surface standing on them cuts, or that a narrow gap "
+        "separates, this many times along the boundary (``mi_plugins.patches.darkness``); 0: the patches as "
+        "they are"),
+)
 
 
 def read_levels(p):

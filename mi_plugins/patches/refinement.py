@@ -21,6 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base.param_docs import Row
+
 from mi_plugins.patches.tessellation import sub_triangle_coords
 from mi_plugins.patches import tessellation
 
@@ -32,9 +34,22 @@ DEFAULT_BUDGET = 4
 Z = 4.0
 
 
+#: the parameters of adaptive subdivision, read by :func:`read_parameters`
+REFINE_ROWS = (
+    Row("refine", "bool", "false",
+        "adaptive subdivision of a view-independent solution: while it is solved, the patches inside which its "
+        "light varies (their children's estimates differ beyond their noise together, at 4 sigma, and a "
+        "child's by more than ``refine_threshold``) split, the largest errors first, and the solve goes on on "
+        "the refined patches (``mi_plugins.patches.refinement``)"),
+    Row("refine_threshold", "float", "0.1", "> 0: the relative variation that splits a patch"),
+    Row("min_patch_size", "float", "patch_size / 4", "> 0: patches are not split below this size"),
+    Row("max_patches", "int", "4 x the patches before refining", ">= 1: splits stop at this many patches"),
+)
+
+
 def read_parameters(p):
     """(refine, refine_threshold, min_patch_size, max_patches) of an integrator, read with
-    its Params ``p`` (the integrators' docstrings give their meaning)."""
+    its Params ``p`` (:data:`REFINE_ROWS`)."""
     return (p.bool("refine", False), p.float("refine_threshold", 0.1, lo=0, lo_open=True),
             p.float("min_patch_size", None, lo=0, lo_open=True, note="optional: patch_size / 4"),
             p.int("max_patches", None, lo=1, note="optional: 4 x the patches before refining"))

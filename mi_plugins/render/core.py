@@ -18,6 +18,7 @@ import drjit as dr
 import mitsuba as mi
 
 from mi_plugins.base import collection, errors, fingerprint
+from mi_plugins.base.param_docs import Row
 from mi_plugins.base.params import Params
 from mi_plugins.light import sources
 from mi_plugins.render import checks
@@ -64,6 +65,19 @@ def gradients_error(plugin, key):
     return NotImplementedError("%s: the scene parameter '%s' requires gradients, but %s is not differentiable (it "
                                "renders with gradients suspended: every derivative would be zero); render "
                                "derivatives with %s" % (plugin, key, plugin, DIFFERENTIABLE))
+
+
+#: ``hide_emitters``, read by every integrator of the package
+HIDE_EMITTERS = Row("hide_emitters", "bool", "false",
+                    "hide directly visible emitters as Mitsuba does: camera rays pass through area emitters and "
+                    "do not see the environment")
+
+
+def iteration_rows(default, unit):
+    """``iterations`` and ``burn_in`` of an iterative plugin (``unit``: what one iteration is)."""
+    return (Row("iterations", "int", str(default), ">= 1 %s per unit of ``spp``" % unit),
+            Row("burn_in", "int", "min(8, iterations - 1)", "0 .. iterations - 1 first iterations left out of "
+                                                            "the image average"))
 
 
 class CoreIntegrator(mi.SamplingIntegrator):

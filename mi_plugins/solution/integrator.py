@@ -24,8 +24,27 @@ import numpy as np
 
 from mi_plugins.base import collection, fingerprint
 from mi_plugins.solution import display
+from mi_plugins.base.param_docs import Row
 from mi_plugins.render.core import CoreIntegrator
 from mi_plugins.render.frame import Frame
+
+
+#: the display parameters of both finite-element integrators, read by ``read_display``
+DISPLAY_ROWS = (
+    Row("display", "string", "``'gather'``",
+        "how the image is made: ``'gather'``, the integrator's own estimate (solved anew for every render); "
+        "``'smooth'``, ``'patches'``, ``'baked'``: from the view-independent solution, kept for every later "
+        "render of the scene with the same seed, whatever the sensor or spp. ``'smooth'``: direct light by "
+        "next-event estimation plus the stored light interpolated from per-vertex values; ``'patches'``: the "
+        "flat patch values; ``'baked'``: the interpolated patch radiance (``max_depth`` -1); glossy and "
+        "specular visible points gather through to the next diffuse surface (``mi_plugins.solution.display``)"),
+    Row("emitter_samples", "int", "8",
+        "1 .. 64: camera rays per camera sample for the emission seen directly, in the pixels on a visible "
+        "emitter's edge only, at the points of a rank-1 lattice across the pixel; 1: off"),
+    Row("preview_every", "int", "0",
+        ">= 0: with ``integrator.preview_callback = f(image, done, total)`` set, every N steps of a solve "
+        "the image of the solution so far (one sample per pixel); 0: none"),
+)
 
 
 class SolutionIntegrator(CoreIntegrator):
