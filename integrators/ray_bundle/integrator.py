@@ -80,7 +80,8 @@ class RayBundleIntegrator(SolutionIntegrator):
     **Refused before any work** (``Unsupported``, naming the plugin, the shape and what to
     use instead): participating media; BSDFs with a null lobe or that transmit, which the
     lines cannot cross; purely specular surfaces (see ``delta_surfaces``); shapes without
-    patches. The radiance carried is constant per patch: where it varies within a patch
+    patches; a lamp facing a surface that does not emit, closer than half the patch size
+    (the light trapped in the gap would leave it as patch averages: :mod:`mi_plugins.patches.gaps`). The radiance carried is constant per patch: where it varies within a patch
     the result is the patch average (a smaller ``patch_size`` lowers that bias).
     Measurements behind the defaults: ``docs/stochastic_iteration.md``.
 
