@@ -13,6 +13,7 @@ import tempfile
 
 import numpy as np
 
+from mi_plugins.patches import tessellation
 from mi_plugins.verify import geometry as geo
 
 #: part of every cache key: raise it when a builder changes its output
@@ -155,11 +156,11 @@ def teapot(centre, size):
 
 def scanned(k, radius, centre, seed=0, stretch=(1.0, 1.0, 1.0)):
     """A 'scanned' object: a geodesic sphere of 20 k^2 triangles (icosahedron faces split
-    k x k, crack-free: `mi_plugins.verify.geometry.triangle_lattice`) displaced by a seeded sum
+    k x k, crack-free: `mi_plugins.patches.tessellation.triangle_lattice`) displaced by a seeded sum
     of waves, scaled by ``stretch``, resting on the plane z = centre[2]."""
     rng = np.random.default_rng(seed)
     ico = geo.icosphere(0, inward=False)
-    lattice = geo.triangle_lattice(k)
+    lattice = tessellation.triangle_lattice(k)
     w = np.concatenate([(k - lattice.sum(-1))[..., None], lattice], axis=-1) / k
     p = np.einsum("tvc,fcx->ftvx", w, ico.vertices[ico.faces]).reshape(-1, 3, 3)
     d = p / np.linalg.norm(p, axis=-1, keepdims=True)
