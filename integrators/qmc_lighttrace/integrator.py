@@ -13,6 +13,7 @@ from mi_plugins.patches import darkness, refinement
 from mi_plugins.base import sequences, seeds
 from mi_plugins.base.param_docs import documented
 from mi_plugins.render import checks
+from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
 from mi_plugins.solution.display import edge_pixels, with_edges
 from mi_plugins.solution.integrator import SolutionIntegrator, solution_meta
@@ -214,7 +215,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         # passes of a bounded number of gather lanes (their memory: about 110 bytes each)
         frame.camera_passes(per_pixel, passes)
         edges = edge_pixels(frame, self.max_depth, self.hide_emitters, self.emitter_samples)
-        for k in range(passes):
+        def step(k):
             cam = frame.camera_pass()
             seed = frame.seed if k == 0 else seeds.stream(frame.seed, "gather pass", k)
             chain, si, light, gathered = paths.estimate(cam, seed, self.gather_samples)
@@ -222,8 +223,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                 gathered = share_with_neighbours(gathered, paths.first_patch_side(si, si.is_valid()), cam)
             value = with_edges(frame, cam, chain, edges, chain.emission + chain.throughput * (light + gathered), seed)
             frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, self.hide_emitters))
-            if passes > 1:
-                dr.eval(frame.state())
+
+        run_steps(frame, None, step, stage=range(passes))
 
     def to_string(self):
         return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (

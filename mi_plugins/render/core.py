@@ -80,6 +80,29 @@ def iteration_rows(default, unit):
                                                             "the image average"))
 
 
+def run_steps(frame, steps, step, after=None, stage=None):
+    """The one step loop of the package's integrators and displays: for each step of
+    ``steps`` (its iterations, or the generator ``stage``, e.g. ``steps.second_stage(n)``
+    or ``range(n)``), ``step(k)`` returns what to evaluate with the frame's blocks; the
+    frame is committed after the evaluation, then ``after(k)`` runs (a check that may
+    extend ``steps``). Ctrl-C inside a step, or a progress callback that stops, ends the
+    loop: the frame returns to its last commit, the finished steps stay (without a step
+    driver, ``steps`` None, the interrupt is raised on). Returns False when the render was
+    stopped."""
+    try:
+        for k in (stage if stage is not None else steps.iterations()):
+            dr.eval(step(k), frame.state())
+            frame.commit()
+            if after is not None:
+                after(k)
+    except KeyboardInterrupt:
+        frame.rollback()
+        if steps is None:
+            raise
+        steps.stop()
+    return steps is None or not steps.state.interrupted
+
+
 class CoreIntegrator(mi.SamplingIntegrator):
     """Base class of the package's integrators: ``render()`` resolves the sensor and the
     samples per pixel, builds a :class:`Frame` and calls :meth:`render_frame`
@@ -163,23 +186,8 @@ class CoreIntegrator(mi.SamplingIntegrator):
         return None
 
     def run_steps(self, frame, steps, step, after=None, stage=None):
-        """The step loop of the package's iterative integrators: for each step of
-        ``steps`` (its iterations, or the generator ``stage``, e.g.
-        ``steps.second_stage(n)``), ``step(k)`` returns what to evaluate with the frame's
-        blocks; the frame is committed after the evaluation, then ``after(k)`` runs (a
-        check that may extend ``steps``). Ctrl-C inside a step, or a progress callback
-        that stops, ends the loop: the frame returns to its last commit, the finished
-        steps stay. Returns False when the render was stopped."""
-        try:
-            for k in (stage if stage is not None else steps.iterations()):
-                dr.eval(step(k), frame.state())
-                frame.commit()
-                if after is not None:
-                    after(k)
-        except KeyboardInterrupt:
-            steps.stop()
-            frame.rollback()
-        return not steps.state.interrupted
+        """:func:`run_steps` of this integrator's render."""
+        return run_steps(frame, steps, step, after, stage)
 
     def render_frame(self, frame):
         raise NotImplementedError

@@ -29,6 +29,7 @@ import numpy as np
 
 from mi_plugins.base import sequences, seeds
 from mi_plugins.render.camera import emission_edges, lattice_rays, seen_emission
+from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
 from mi_plugins.solution.gather import CameraPaths, FlatTables
 from mi_plugins.solution.surfaces import patch_side
@@ -256,7 +257,7 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
     paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
     per_pixel, passes = pass_layout(frame.spp, frame.sample_pixels())
     frame.camera_passes(per_pixel, passes)
-    for k in (range(passes) if steps is None else steps.second_stage(passes)):
+    def step(k):
         cam = frame.camera_pass()
         seed = seeds.stream(frame.seed, "display", k)
         chain, si, bsdf, used, active = paths.visible_points(cam, seed, evaluate=False)
@@ -269,5 +270,5 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         value = chain.emission + chain.throughput * value
         value = with_edges(frame, cam, chain, edges, value, seed)
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))
-        dr.eval(frame.state())
-        frame.commit()
+
+    run_steps(frame, steps, step, stage=range(passes) if steps is None else steps.second_stage(passes))
