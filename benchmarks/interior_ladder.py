@@ -108,8 +108,8 @@ class Fresh:
         """The package built a new patch table for this scene (not one of an earlier scene)."""
         if method not in PACKAGE:
             return
-        from mi_plugins.patches import meshtable
-        last = getattr(meshtable, "_LAST", None)
+        from mi_plugins.patches import build
+        last = getattr(build, "_LAST", None)
         if last is None:             # (a module without this cache: nothing to check)
             return
         if not last or last[0][0][0] != id(self.scene) or last[0][1] is self.table:

@@ -132,6 +132,17 @@ def solve(scene, integrator=None, seed=0):
     return integrator.solve(scene, seed)
 
 
+#: shortcuts: ``from mi_plugins import analytic`` (the scenes whose exact radiance is known)
+_SHORTCUTS = {"analytic": "mi_plugins.verify.analytic"}
+
+
+def __getattr__(name):
+    if name in _SHORTCUTS and not _BARE:
+        import importlib
+        return importlib.import_module(_SHORTCUTS[name])
+    raise AttributeError("module 'mi_plugins' has no attribute '%s'" % name)
+
+
 if _BARE:
     registered = {}
 else:
@@ -144,4 +155,6 @@ else:
 
     registered = register()
     if __name__ + ".verify.pytest_plugin" in sys.modules:  # loaded earlier with a bare parent
-        pytest_plugin = sys.modules[__name__ + ".verify.pytest_plugin"]
+        import importlib
+        verify = importlib.import_module(__name__ + ".verify")
+        verify.pytest_plugin = sys.modules[__name__ + ".verify.pytest_plugin"]

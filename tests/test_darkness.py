@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.patches import darkness
+from mi_plugins.patches import build, darkness
 from mi_plugins.verify.conformance import runner
 from mi_plugins.patches.meshtable import MeshTable
 from mi_plugins.solution.patchfield import PatchField
@@ -194,11 +194,11 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
     settings = {"type": "qmc_lighttrace", "samples": 100000}
     mean, se = _mean_and_se(scene, settings, 8, 16, 51)
     budget.close(mean, ref, np.hypot(se, ref_se), what="gather with the cut patches split / path")
-    meshtable._LAST.clear()
+    build._LAST.clear()
     with monkeypatch.context() as patch:
         patch.setattr(darkness, "cut_fractions", lambda table, *a: np.zeros((table.front_count, 2)))
         bad, bad_se = _mean_and_se(scene, settings, 8, 16, 51)
-    meshtable._LAST.clear()
+    build._LAST.clear()
     assert bad - ref > 4 * np.hypot(bad_se, ref_se) and bad > 1.08 * ref, (bad, ref, bad_se, ref_se)
 
 
@@ -220,11 +220,11 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
                     type=integrator, display="smooth")
     mean, se = _mean_and_se(scene, settings, 16, 8, 55, foot)
     budget.close(mean, ref, np.hypot(se, ref_se), what="%s smooth display along the panel's foot / path" % integrator)
-    meshtable._LAST.clear()
+    build._LAST.clear()
     with monkeypatch.context() as patch:
         patch.setattr(patchfield, "separate", lambda scene, vertex, *a: vertex)
         bad, bad_se = _mean_and_se(scene, settings, 16, 8, 55, foot)
-    meshtable._LAST.clear()
+    build._LAST.clear()
     assert abs(bad - ref) > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.patches import gaps, meshtable
+from mi_plugins.patches import build, gaps
 from mi_plugins.verify.conformance import runner, scene_library
 from mi_plugins.patches.meshtable import MeshTable
 from mi_plugins.patches.tessellation import default_patch_size
@@ -126,11 +126,11 @@ def test_the_light_trapped_over_the_lamp_does_not_leak(display, reference, monke
     mean, se = _means(flipped_box(), settings, spp, 8, 71)
     budget.close(mean, ref, np.hypot(se, ref_se), what="qmc_lighttrace %s / ptracer" % display)
     if display == "gather":
-        meshtable._LAST.clear()
+        build._LAST.clear()
         with monkeypatch.context() as patch:
             patch.setattr(gaps, "_mouths", lambda table: np.zeros(table.front_count, bool))
             bad, bad_se = _means(flipped_box(), settings, spp, 8, 71)
-        meshtable._LAST.clear()
+        build._LAST.clear()
         assert bad > 1.5 * ref and bad - ref > 4.5 * np.hypot(bad_se, ref_se), (bad, ref)
 
 
@@ -144,11 +144,11 @@ def test_a_display_does_not_show_the_mouths_averages(monkeypatch):
     settings = {"type": "qmc_lighttrace", "display": "patches"}
     mean, se = _means(scene, settings, 64, 8, 73)
     budget.close(mean, ref, np.hypot(se, ref_se), what="patches display with the mouth in sight / ptracer")
-    meshtable._LAST.clear()
+    build._LAST.clear()
     with monkeypatch.context() as patch:
         patch.setattr(gaps, "_mouths", lambda table: np.zeros(table.front_count, bool))
         bad, bad_se = _means(scene, settings, 64, 8, 73)
-    meshtable._LAST.clear()
+    build._LAST.clear()
     assert bad > 1.3 * ref and bad - ref > 4.5 * np.hypot(bad_se, ref_se), (bad, ref)
 
 

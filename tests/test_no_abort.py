@@ -121,7 +121,7 @@ def test_every_emitter_with_every_integrator_in_a_fresh_process():
 
 
 REDUCED = PRELUDE + r'''
-from mi_plugins import lights
+from mi_plugins.light import sources as lights
 if OFF:
     lights.build_parameterizations = lambda scene: None
 d = {"type": "scene", "sensor": scene(False)["sensor"],
