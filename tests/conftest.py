@@ -11,6 +11,11 @@ import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 import drjit as dr  # noqa: E402
 
+# The suite builds every scene's setup itself: its tests of the tests replace the code that
+# builds it, which a disk cache of earlier runs would skip (tests/test_setup_cache.py turns
+# the cache on where it is the subject).
+os.environ["MI_PLUGINS_SETUP_CACHE"] = "off"
+
 import mi_plugins  # noqa: E402,F401  (registers the plugins)
 from mi_plugins.verify.analytic import harness  # noqa: E402
 

@@ -1,10 +1,12 @@
 """The patch table of a render: built once per scene and settings, split where patches
 lie partly in the dark (:mod:`mi_plugins.patches.darkness`), and the patch parameters that
 choose its resolution."""
+import numpy as np
+
 from mi_plugins.base.fingerprint import scene_fingerprint
 from mi_plugins.base.param_docs import Row
-from mi_plugins.patches import tessellation
-from mi_plugins.patches.darkness import split_in_the_dark
+from mi_plugins.patches import setup_cache, tessellation
+from mi_plugins.patches.darkness import renumbered, split_in_the_dark
 from mi_plugins.patches.meshtable import MeshTable
 
 #: the patch table of the last render (one entry for every integrator of the process): a
@@ -28,8 +30,36 @@ def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, 
         if before_build is not None:
             before_build()
         table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
-        _LAST[:] = [(key, split_in_the_dark(table, dark_levels))]
+        _LAST[:] = [(key, stored_splits(table, dark_levels))]
     return _LAST[0][1]
+
+
+def stored_splits(table, dark_levels):
+    """:func:`split_in_the_dark` of ``table``, its rounds kept in the setup cache
+    (:mod:`mi_plugins.patches.setup_cache`) by the scene's content and the table's
+    settings, with the shape order they were numbered in (a later load of the scene may
+    order its shapes otherwise: the rounds are renumbered); the result's ``setup_key``
+    names it there for the values derived from it."""
+    settings = (setup_cache.scene_key(table.scene), table.h, bool(table.back_sides), table.settings,
+                int(dark_levels))
+    entry = setup_cache.key("dark rounds", settings)
+    arrays, split = setup_cache.load(entry), None
+    if arrays is not None:
+        try:
+            order = setup_cache.ShapeOrder(table, arrays[setup_cache.DIGESTS])
+            rounds = setup_cache.unpack({k: v for k, v in arrays.items() if k != setup_cache.DIGESTS})["rounds"]
+            split = renumbered(table, rounds, order.shape)[1]
+        except (KeyError, IndexError, ValueError):        # (a damaged entry or another scene's)
+            split = None
+    if split is None:
+        split = split_in_the_dark(table, dark_levels)
+        arrays = dict(setup_cache.pack({"rounds": tuple(np.asarray(r, np.int64) for r in split.dark_rounds)}),
+                      **{setup_cache.DIGESTS: setup_cache.digests_of(table)})
+        setup_cache.store(entry, arrays)
+    elif split is not table:
+        split.dark_base = table
+    split.setup_key = (settings, setup_cache.token(arrays))
+    return split
 
 
 #: the patch parameters of the finite-element integrators, read by :func:`patch_parameters`

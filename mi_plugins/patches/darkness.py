@@ -225,13 +225,37 @@ def replay_dark(table, rounds):
     the last result is kept for the next call."""
     key = (id(table), repr(rounds))
     if not _REPLAYED or _REPLAYED[0][0] != key:
-        split = table
-        for patches in rounds:
-            split = split_recorded(split, np.asarray(patches, np.int64))
-        if split is not table:
-            split.dark_base = table
-        _REPLAYED[:] = [(key, split, table)]          # (the base held: its id stays unique)
+        _REPLAYED[:] = [(key, split_by(table, rounds), table)]          # (the base held: its id stays unique)
     return _REPLAYED[0][1]
+
+
+def renumbered(table, rounds, order, step=None):
+    """(rounds, table): recorded rounds of splits (front patch indices of the table each
+    was chosen on, in a stored scene's shape order) in the numbering of ``table``'s
+    scene, whose stored shape k is its shape ``order[k]``, and ``table`` split by them,
+    round after round (``step(table, patches)``: the next round's table; default
+    :func:`split_recorded`)."""
+    step = step or split_recorded
+    out = []
+    for split in rounds:
+        split = np.asarray(split, np.int64)
+        counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
+        saved = np.concatenate([[0], np.cumsum(counts[order])[:-1]])       # offsets in the stored order
+        k = np.searchsorted(saved, split, side="right") - 1
+        here = np.sort(table.face_offsets[np.asarray(order)[k]].astype(np.int64) + split - saved[k])
+        out.append([int(i) for i in here])
+        table = step(table, here)
+    return out, table
+
+
+def split_by(table, rounds):
+    """``table`` (unsplit) split by the recorded ``rounds``, its ``dark_base`` set."""
+    split = table
+    for patches in rounds:
+        split = split_recorded(split, np.asarray(patches, np.int64))
+    if split is not table:
+        split.dark_base = table
+    return split
 
 
 def with_splits(table, rounds):

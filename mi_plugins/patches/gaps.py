@@ -82,7 +82,10 @@ def side_points(table):
 def mouth_patches(table):
     """numpy bool (front_count,): the front patches with a side at a gap's mouth (see the
     module docstring); kept with the table (``MeshTable.derived``)."""
-    return table.derived("gap mouths", lambda: _mouths(table))
+    return table.derived("gap mouths", lambda: _mouths(table),
+                         (lambda mouth: {"mouth": mouth},
+                          lambda arrays, order: arrays["mouth"].astype(bool)[slice(None) if order is None
+                                                                             else order.patch]))
 
 
 def _mouths(table):

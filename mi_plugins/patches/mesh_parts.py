@@ -14,6 +14,7 @@ shape's cells (``mi_plugins.patches.tessellation``) are one element and one patc
 """
 import numpy as np
 
+from mi_plugins.base.arrays import distinct, row_keys
 from mi_plugins.patches import tessellation
 
 #: subdivision level s (s x s sub-triangles per triangle) at the most
@@ -35,7 +36,9 @@ def split_levels(p, h):
 
 
 def longest_edges(p):
-    return np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    """The longest edge of each triangle of corners ``p`` (n, 3, 3)."""
+    d = p - p[:, [2, 0, 1]]
+    return np.sqrt(np.einsum("nkc,nkc->nk", d, d).max(axis=1))
 
 
 def sub_triangles(s):
@@ -69,7 +72,9 @@ def cluster_triangles(p, normals, h):
     keys = np.concatenate([cell, normal_bucket(normals)[:, None]], axis=1)
     keys[~small] = np.stack([np.full((~small).sum(), np.iinfo(np.int64).min), np.flatnonzero(~small),
                              np.zeros((~small).sum(), np.int64), np.zeros((~small).sum(), np.int64)], axis=1)
-    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    packed = row_keys(keys)
+    _, first, group = (np.unique(packed, return_index=True, return_inverse=True) if packed is not None
+                       else np.unique(keys, axis=0, return_index=True, return_inverse=True))
     order = np.argsort(np.argsort(first))          # groups numbered by their first triangle
     return order[group.ravel()]
 
@@ -86,7 +91,7 @@ def patch_count(p, h, subdivide=True, cluster=True):
     groups = cluster_triangles(p, cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-30), h)
     if groups is None:
         return int(np.sum(level ** 2))
-    return int(np.sum(level[level > 1] ** 2)) + len(np.unique(groups[level == 1]))
+    return int(np.sum(level[level > 1] ** 2)) + len(distinct(groups[level == 1]))
 
 
 def _runs(level):
@@ -174,7 +179,7 @@ def refine(part, split, h):
     part = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
     patch, leaf = part["patch"], leaves(part)
     elements_of = np.bincount(patch[leaf], minlength=int(patch.max()) + 1)
-    split = np.unique(np.asarray(split, np.int64))
+    split = distinct(np.asarray(split, np.int64))
     single = split[elements_of[split] == 1]
     clusters = split[elements_of[split] > 1]
     grow = np.flatnonzero(leaf & np.isin(patch, single) & (part["depth"] < MAX_DEPTH))

@@ -28,7 +28,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.patches import tessellation
+from mi_plugins.base import fingerprint
+from mi_plugins.base.arrays import jit
+from mi_plugins.patches import setup_cache, tessellation
 from mi_plugins.patches.mesh_parts import MAX_SPLIT, analytic_part, mesh_part, sub_triangles  # noqa: F401
 from mi_plugins.base.queries import is_mesh, reflects_on_both_sides
 from mi_plugins.patches.normals import require_consistent_normals
@@ -69,6 +71,14 @@ def _checked_mesh_part(mesh, h, subdivide, cluster, who):
     return mesh_part(verts, faces, uv, mesh.has_flipped_normals(), h, subdivide, cluster)
 
 
+def _stored_mesh_part(mesh, digest, h, subdivide, cluster, who):
+    """:func:`_checked_mesh_part`, kept in the setup cache by the mesh's content digest
+    (:mod:`mi_plugins.patches.setup_cache`)."""
+    entry = setup_cache.key("mesh part", digest, float(h), bool(subdivide), bool(cluster))
+    return setup_cache.cached(entry, lambda: _checked_mesh_part(mesh, h, subdivide, cluster, who),
+                              setup_cache.pack, setup_cache.unpack)
+
+
 class MeshTable:
     """All patches of ``scene``'s shapes, numbered 0 .. count-1; ``h``: the patch size
     (default: bounding-box diagonal / tessellation.CELLS_PER_DIAGONAL); ``subdivide``:
@@ -94,12 +104,15 @@ class MeshTable:
             h = default_patch_size(scene)
         self.h = float(h)
         if parts is None:
-            parts = [_checked_mesh_part(m, h, subdivide, cluster, who) if is_mesh(m) else analytic_part(m, h)
-                     for m in self.shapes]
+            digests = fingerprint.shape_digests(scene)
+            parts = [_stored_mesh_part(m, digest, h, subdivide, cluster, who) if is_mesh(m) else analytic_part(m, h)
+                     for m, digest in zip(self.shapes, digests)]
         self.parts = parts                 # numpy, per shape (mi_plugins.patches.mesh_parts), for refined()
         self.dark_rounds = []              # the dark splits that made it (mi_plugins.patches.darkness), kept by refined()
         self.dark_base = None              # the table before them (None: this one)
         self._derived = {}                 # name -> a value made from the geometry (derived())
+        self.settings = (bool(subdivide), bool(cluster))
+        self.setup_key = None              # the table's name in the setup cache (patches.build), if it has one
         elements = np.array([len(part["area"]) for part in parts], dtype=np.int64)
         patches = np.array([int(part["patch"].max()) + 1 if len(part["patch"]) else 0 for part in parts], np.int64)
         self.face_offsets = np.concatenate([[0], np.cumsum(patches)[:-1]]).astype(np.uint32)
@@ -124,7 +137,7 @@ class MeshTable:
         backs = np.flatnonzero(two_sided[shape_index])
         back_of = np.full(self.front_count, self.NONE, dtype=np.uint32)
         back_of[backs] = self.front_count + np.arange(len(backs))
-        self._back_of, self.back_of_np = mi.UInt32(back_of), back_of
+        self._back_of, self.back_of_np = jit(mi.UInt32, back_of), back_of
         #: per patch (fronts, then backs): the front patch it belongs to (backs: their side 1)
         self.front_of_np = np.concatenate([np.arange(self.front_count), backs]).astype(np.int64)
         self.count = self.front_count + len(backs)
@@ -136,11 +149,11 @@ class MeshTable:
         self.points_np = np.concatenate([part["points"] for part in parts])
         self._lookups(scene, parts, elements)
         self._elements(parts, elem, element_patch, e_area, leaf)
-        self.normal = mi.Normal3f(*self.normals_np.T)          # orientation of the patch (its side)
-        self.surface_normal = mi.Normal3f(*normal[self.front_of_np].T)   # the surface's (Mitsuba's si.n)
-        self.area = mi.Float(self.areas_np)
-        self.shape_index = mi.UInt32(self.shape_index_np)
-        self._front_of = mi.UInt32(self.front_of_np.astype(np.uint32))
+        self.normal = jit(mi.Normal3f, *self.normals_np.T)          # orientation of the patch (its side)
+        self.surface_normal = jit(mi.Normal3f, *normal[self.front_of_np].T)   # the surface's (Mitsuba's si.n)
+        self.area = jit(mi.Float, self.areas_np)
+        self.shape_index = jit(mi.UInt32, self.shape_index_np)
+        self._front_of = jit(mi.UInt32, self.front_of_np.astype(np.uint32))
 
     def _lookups(self, scene, parts, elements):
         """Tables indexed by the shape pointers' ids, and per mesh triangle (all meshes,
@@ -150,7 +163,7 @@ class MeshTable:
         def by_id(values):
             table = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
             table[ids] = values
-            return mi.UInt32(table)
+            return jit(mi.UInt32, table)
         meshes = [(i, part) for i, part in enumerate(parts) if "level" in part]
         base = np.concatenate([[0], np.cumsum([len(part["level"]) for _, part in meshes])]).astype(np.int64)
         parent_base = np.zeros(len(parts), dtype=np.int64)
@@ -164,11 +177,11 @@ class MeshTable:
             level.append(part["level"])
             corners.append(part["parents"])
         first, level, corners = (np.concatenate(a[1:] + a[:1]) for a in (first, level, corners))
-        self._first = mi.UInt32(first)
-        self._level = mi.UInt32(level)
-        self._parent_p0 = mi.Point3f(*corners[:, 0].T)
-        self._parent_e1 = mi.Vector3f(*(corners[:, 1] - corners[:, 0]).T)
-        self._parent_e2 = mi.Vector3f(*(corners[:, 2] - corners[:, 0]).T)
+        self._first = jit(mi.UInt32, first)
+        self._level = jit(mi.UInt32, level)
+        self._parent_p0 = jit(mi.Point3f, *corners[:, 0].T)
+        self._parent_e1 = jit(mi.Vector3f, *(corners[:, 1] - corners[:, 0]).T)
+        self._parent_e2 = jit(mi.Vector3f, *(corners[:, 2] - corners[:, 0]).T)
         self._element_by_id = by_id(self.element_offsets)
         self._parent_by_id = by_id(parent_base)
         self._kind_by_id = by_id([p["kind"][0] if len(p["kind"]) else 0 for p in parts])
@@ -193,22 +206,22 @@ class MeshTable:
                                 leaf=leaf, depth=elem("depth"))
         #: the most times an element was split (the descent of locate())
         self.max_depth = int(elem("depth").max(initial=0))
-        self._child = mi.UInt32(np.where(child >= 0, child, self.NONE).astype(np.uint32))
+        self._child = jit(mi.UInt32, np.where(child >= 0, child, self.NONE).astype(np.uint32))
         self.kind_np = kind
-        self.p0, self.e1, self.e2 = mi.Point3f(*tri[:, 0].T), mi.Vector3f(*(tri[:, 1] - tri[:, 0]).T), \
-            mi.Vector3f(*(tri[:, 2] - tri[:, 0]).T)
-        self.uv0, self.duv1, self.duv2 = mi.Point2f(*uv[:, 0].T), mi.Vector2f(*(uv[:, 1] - uv[:, 0]).T), \
-            mi.Vector2f(*(uv[:, 2] - uv[:, 0]).T)
-        self.kind = mi.UInt32(kind)
-        self.prim = mi.UInt32(elem("prim"))
+        self.p0, self.e1, self.e2 = jit(mi.Point3f, *tri[:, 0].T), jit(mi.Vector3f, *(tri[:, 1] - tri[:, 0]).T), \
+            jit(mi.Vector3f, *(tri[:, 2] - tri[:, 0]).T)
+        self.uv0, self.duv1, self.duv2 = jit(mi.Point2f, *uv[:, 0].T), jit(mi.Vector2f, *(uv[:, 1] - uv[:, 0]).T), \
+            jit(mi.Vector2f, *(uv[:, 2] - uv[:, 0]).T)
+        self.kind = jit(mi.UInt32, kind)
+        self.prim = jit(mi.UInt32, elem("prim"))
         # the kernels read them by element, zeros on meshes (arrays of the cells only, read
         # through a row index, crashed a ray_bundle render of a million triangles once
         # Dr.Jit's allocation cache had been flushed between renders: not explained, not kept)
         full_bounds, full_frame = _per_element(len(kind), cells, bounds), _per_element(len(kind), cells, frame)
-        self.bounds = tuple(mi.Float(full_bounds[:, k]) for k in range(4))
-        self.frame = [mi.Float(full_frame[:, k]) for k in range(full_frame.shape[1])]
-        self.element_normal = mi.Normal3f(*elem("normal").T)
-        self.element_patch = mi.UInt32(np.where(leaf, element_patch, self.NONE).astype(np.uint32))
+        self.bounds = tuple(jit(mi.Float, full_bounds[:, k]) for k in range(4))
+        self.frame = [jit(mi.Float, full_frame[:, k]) for k in range(full_frame.shape[1])]
+        self.element_normal = jit(mi.Normal3f, *elem("normal").T)
+        self.element_patch = jit(mi.UInt32, np.where(leaf, element_patch, self.NONE).astype(np.uint32))
         leaves = np.flatnonzero(leaf)
         order = leaves[np.argsort(element_patch[leaves], kind="stable")]
         counts = np.bincount(element_patch[leaves], minlength=self.front_count)
@@ -216,10 +229,10 @@ class MeshTable:
         per_patch = np.bincount(element_patch[leaves], e_area[leaves], minlength=self.front_count)
         share = np.cumsum(e_area[order]) - np.repeat(np.cumsum(per_patch) - per_patch, counts)
         share /= np.maximum(np.repeat(per_patch, counts), 1e-300)
-        self._sorted = mi.UInt32(order.astype(np.uint32))
-        self._share = mi.Float(share)
-        self._patch_first = mi.UInt32(starts.astype(np.uint32))
-        self._patch_elements = mi.UInt32(counts.astype(np.uint32))
+        self._sorted = jit(mi.UInt32, order.astype(np.uint32))
+        self._share = jit(mi.Float, share)
+        self._patch_first = jit(mi.UInt32, starts.astype(np.uint32))
+        self._patch_elements = jit(mi.UInt32, counts.astype(np.uint32))
         #: bisection steps to choose an element of the largest patch
         self.choice_steps = int(np.ceil(np.log2(max(int(counts.max(initial=1)), 1))))
 
@@ -234,13 +247,19 @@ class MeshTable:
         back = dr.gather(mi.UInt32, self._back_of, front, ~facing)
         return dr.select(facing, front, back), facing | (back != self.NONE)
 
-    def derived(self, name, make):
+    def derived(self, name, make, stored=None):
         """The value ``name`` that depends on the table's geometry only (the smooth field,
         the bounding sphere of the bundles), made by ``make()`` once and kept with the table:
         a table is not changed once built (a refinement makes a new one), so it never goes
-        stale."""
+        stale. ``stored``: (to_arrays, from_arrays(arrays, order)), to keep it in the setup
+        cache too (:func:`mi_plugins.patches.setup_cache.cached_for_table`; tables built by
+        ``patches.build`` only)."""
         if name not in self._derived:
-            self._derived[name] = make()
+            if stored is not None and self.setup_key is not None:
+                entry = setup_cache.key(name, self.setup_key)
+                self._derived[name] = setup_cache.cached_for_table(self, entry, make, *stored)
+            else:
+                self._derived[name] = make()
         return self._derived[name]
 
     def patch(self, si):

@@ -27,6 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base.arrays import jit
 from mi_plugins.base import sequences, seeds
 from mi_plugins.render.camera import emission_edges, lattice_rays, seen_emission
 from mi_plugins.render.core import run_steps
@@ -50,7 +51,7 @@ def _color(values):
     flat = np.asarray(values, dtype=np.float64).reshape(-1, 3)
     if len(flat) < 2:
         flat = np.concatenate([flat, np.zeros((2 - len(flat), 3))])
-    return mi.Color3f(*(mi.Float(flat[:, c]) for c in range(3)))
+    return jit(mi.Color3f, *flat[:, :3].T)
 
 
 class ReadTables:
@@ -232,7 +233,7 @@ def edge_pixels(frame, max_depth, hide_emitters, emitter_samples):
     mask = emission_edges(frame, [((x + half) % 1.0, (y + half) % 1.0) for x, y in shifts])
     if mask is None or not mask.any():
         return None
-    return shifts, mi.Bool(mask), mi.UInt32(np.flatnonzero(mask).astype(np.uint32))
+    return shifts, jit(mi.Bool, mask), jit(mi.UInt32, np.flatnonzero(mask))
 
 
 def with_edges(frame, cam, chain, edges, value, state, block="camera"):

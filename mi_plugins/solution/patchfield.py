@@ -40,7 +40,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.patches import darkness, tessellation
+from mi_plugins.base.arrays import distinct, jit
+from mi_plugins.patches import darkness, setup_cache, tessellation
 from mi_plugins.patches.gaps import mouth_patches
 
 #: patches whose normals differ by more than this (degrees) at a shared corner keep
@@ -120,10 +121,9 @@ def separate(scene, vertex, centres, normals, scale):
         return vertex
     lead = np.unique(vertex, return_index=True)[1][vertex]      # each vertex's first corner (ids 0 .. V-1)
     eps = 1e-5 * (1.0 + float(scale))
-    jit = lambda kind, a: kind(*(mi.Float(a[:, c]) for c in range(3)))
-    apart = np.array(darkness.crossed(scene, jit(mi.Point3f, centres + normals * eps),
-                                      jit(mi.Point3f, centres[lead] + normals[lead] * eps),
-                                      jit(mi.Vector3f, normals)), dtype=bool)
+    apart = np.array(darkness.crossed(scene, jit(mi.Point3f, *(centres + normals * eps).T),
+                                      jit(mi.Point3f, *(centres[lead] + normals[lead] * eps).T),
+                                      jit(mi.Vector3f, *normals.T)), dtype=bool)
     if not apart.any():
         return vertex
     return np.unique(vertex * 2 + apart, return_inverse=True)[1].ravel()
@@ -161,7 +161,7 @@ def unique_pairs(a, b):
     """The distinct pairs (a[i], b[i]) of two non-negative integer arrays, sorted by a then b."""
     a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
     base = int(b.max(initial=0)) + 1
-    key = np.unique(a * base + b)
+    key = distinct(a * base + b)
     return key // base, key % base
 
 
@@ -362,12 +362,49 @@ class PatchField:
                     / np.maximum(total, 1e-300)
         return out
 
+    # ------------------------------------------------------------------ the setup cache
+    def arrays(self):
+        """{name: numpy array} of the field (:mod:`mi_plugins.patches.setup_cache`)."""
+        return setup_cache.pack({k: v for k, v in self.__dict__.items() if k != "_jit"})
+
+    @classmethod
+    def from_arrays(cls, arrays, order=None):
+        """The field stored by :meth:`arrays`, its patches, elements and shapes renumbered
+        by ``order`` (:class:`mi_plugins.patches.setup_cache.ShapeOrder`; None: as stored);
+        its vertices keep their stored numbers (any numbering is one)."""
+        field = cls.__new__(cls)
+        field.__dict__.update(setup_cache.unpack(arrays))
+        field._jit = None
+        if order is not None:
+            field._renumber(order)
+        return field
+
+    #: the field's arrays by what their rows are (elements, patches) and what values
+    #: name a patch: (attribute, index in its tuple or None)
+    _BY_ELEMENT = ("corner_count", "kind", "element_patch", "element_normals", "element_shape", "leaf", "vertex_ids")
+    _BY_PATCH = ("normals", "areas", "centroids")
+    _PATCH_VALUES = (("element_patch", None), ("_pairs", 0), ("_planes", 0), ("_planes", 1), ("_inner", 1),
+                     ("_averages", 0))
+
+    def _renumber(self, order):
+        for name in self._BY_ELEMENT:
+            setattr(self, name, getattr(self, name)[order.element])
+        for name in self._BY_PATCH:
+            setattr(self, name, getattr(self, name)[order.patch])
+        for name, k in self._PATCH_VALUES:
+            value = getattr(self, name)
+            if k is None:
+                setattr(self, name, np.where(value >= 0, order.patches(np.maximum(value, 0)), value))
+            else:
+                setattr(self, name, value[:k] + (order.patches(value[k]),) + value[k + 1:])
+        self.element_shape = order.shape[self.element_shape]
+
     # ------------------------------------------------------------------ kernels
     def jit(self):
         """The arrays kernels read (made once)."""
         if self._jit is None:
             ids = np.concatenate([self.vertex_ids, np.zeros((2, 4), np.uint32)])  # (never width 1)
-            self._jit = [mi.UInt32(ids[:, j]) for j in range(4)]
+            self._jit = [jit(mi.UInt32, ids[:, j]) for j in range(4)]
         return self._jit
 
     def weights(self, element, mesh, a, b, active=True):
@@ -385,4 +422,4 @@ def field_of(table):
     (``MeshTable.derived``): it depends on the patches' geometry only, not on a solution,
     so every solve and every loaded solution on the same table shares it (on a million
     triangles it takes seconds, more than the solve of a 1 s budget)."""
-    return table.derived("patch field", lambda: PatchField(table))
+    return table.derived("patch field", lambda: PatchField(table), (PatchField.arrays, PatchField.from_arrays))

@@ -190,18 +190,18 @@ class Solution:
         solution = cls(arrays["tables"], arrays["areas"], meta, arrays.get("error"), meta.get("direct_in_tables", False),
                        direct=arrays.get("direct"), radiance=arrays.get("radiance"), emission=arrays.get("emission"))
         order = solution.check_scene(scene)
-        from mi_plugins.patches.darkness import split_in_the_dark, split_recorded
+        from mi_plugins.patches.darkness import renumbered, split_in_the_dark, split_recorded
         base = MeshTable(scene, meta.get("integrator", "solution"), h=meta["patch_size"],
                          subdivide=meta["subdivide"], cluster=meta.get("cluster", True))
         # the recorded dark splits and refinements, in this scene's numbering of the patches
         # (its shapes may load in another order); a file without dark splits: measured again
         if "dark_splits" in meta:
-            meta["dark_splits"], dark = _renumbered(base, meta["dark_splits"], order, split_recorded)
+            meta["dark_splits"], dark = renumbered(base, meta["dark_splits"], order, split_recorded)
             if dark is not base:
                 dark.dark_base = base
         else:
             dark = split_in_the_dark(base, meta.get("dark_levels", 0))
-        meta["refinements"], table = _renumbered(dark, meta.get("refinements") or [], order,
+        meta["refinements"], table = renumbered(dark, meta.get("refinements") or [], order,
                                                  lambda t, split: t.refined(split)[0])
         solution.meta.update({k: meta[k] for k in ("dark_splits", "refinements") if k in meta})
         counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
@@ -252,20 +252,3 @@ class Solution:
         (:mod:`mi_plugins.solution.viewer`). ``scene``: the solution's scene. Returns the path."""
         from mi_plugins.solution.viewer import write_html
         return write_html(self, path, scene, sensor, exposure)
-
-
-def _renumbered(table, rounds, order, split_by):
-    """(rounds, table): recorded rounds of splits (front patch indices of the table each
-    was chosen on, in the saved scene's shape order) in the numbering of ``table``'s
-    scene, whose shape k of the file is its shape ``order[k]``, and ``table`` split by
-    them, round after round (``split_by(table, patches)``: the next round's table)."""
-    out = []
-    for split in rounds:
-        split = np.asarray(split, np.int64)
-        counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
-        saved = np.concatenate([[0], np.cumsum(counts[order])[:-1]])       # offsets in the file's order
-        k = np.searchsorted(saved, split, side="right") - 1
-        here = np.sort(table.face_offsets[np.asarray(order)[k]].astype(np.int64) + split - saved[k])
-        out.append([int(i) for i in here])
-        table = split_by(table, here)
-    return out, table

@@ -23,6 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base.arrays import jit
 from mi_plugins.base import queries
 from mi_plugins.patches.gaps import mouth_patches
 
@@ -46,14 +47,14 @@ class Surfaces:
     def __init__(self, scene, table=None):
         mouths = mouth_patches(table) if table is not None else np.zeros(0, bool)
         self.table, self.any_mouth = table, bool(mouths.any())
-        self._mouth = mi.UInt32(np.concatenate([mouths, [False, False]]).astype(np.uint32))   # (never width 1)
+        self._mouth = jit(mi.UInt32, np.concatenate([mouths, [False, False]]))   # (never width 1)
         shapes = list(scene.shapes())
         self.diffuse_np = np.array([purely_diffuse(s.bsdf()) for s in shapes], dtype=bool)
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64) if shapes else \
             np.zeros(0, np.int64)
         table = np.zeros(int(ids.max()) + 1 if len(ids) else 1, dtype=np.uint32)
         table[ids] = self.diffuse_np
-        self._diffuse_by_id = mi.UInt32(table)
+        self._diffuse_by_id = jit(mi.UInt32, table)
 
     @property
     def any_diffuse(self):
