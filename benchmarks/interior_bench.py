@@ -54,15 +54,21 @@ def run_key(args, sname, method):
                 if f.endswith(".py"):
                     code.update(open(os.path.join(base, f), "rb").read())
     parts = (interiors.scene_key(sname, args.resolution), method, args.seeds, args.times, args.cap, args.ref_spp,
-             args.max_rungs, mi.__version__, code.hexdigest(),
+             args.max_rungs, args.setup_cache, mi.__version__, code.hexdigest(),
              *(open(os.path.join(HERE, f), "rb").read() for f in ("interior_bench.py", "interior_ladder.py")))
     return hashlib.sha1(repr(parts).encode()).hexdigest()[:12]
 
 
 def run_child(args, what, timeout):
     """``--worker what`` in a fresh process (its progress on stderr): its result dict or an error note."""
+    # every timed render pays its setup, as a first render does: the setup cache is off
+    # (``--setup-cache``: on, as a user who renders the same scene again)
+    env = dict(os.environ, MI_PLUGINS_SETUP_CACHE=os.environ.get("MI_PLUGINS_SETUP_CACHE", "on")
+               if args.setup_cache else "off")
+    if env["MI_PLUGINS_SETUP_CACHE"] == "on":
+        env.pop("MI_PLUGINS_SETUP_CACHE")
     proc = subprocess.run([sys.executable, os.path.abspath(__file__), *sys.argv[1:], "--worker", what],
-                          stdout=subprocess.PIPE, text=True, cwd=ROOT, timeout=timeout)
+                          stdout=subprocess.PIPE, text=True, cwd=ROOT, timeout=timeout, env=env)
     lines = [l.split(MARK, 1)[1] for l in proc.stdout.splitlines() if MARK in l]   # (after Mitsuba's colour codes)
     if proc.returncode != 0 or not lines:
         return None, "failed: child exited with code %s" % proc.returncode
@@ -103,6 +109,8 @@ def main():
     p.add_argument("--resume", action="store_true", help="reuse the results of an earlier run with the same "
                                                          "settings, scene and code (kept in the temp dir)")
     p.add_argument("--write-docs", action="store_true", help="write the tables into docs/interiors.md")
+    p.add_argument("--setup-cache", action="store_true", help="keep the package's setup cache on (default off: "
+                                                               "every render pays its setup)")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
     for key, full, quick in (("seeds", 3, 2), ("resolution", 128, 32), ("times", "4,10,30,60", "2,4"),

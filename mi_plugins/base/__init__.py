@@ -8,7 +8,9 @@
 - :mod:`.queries`: what a scene holds (plugin names, BSDFs, bounds); :mod:`.fingerprint`:
   a scene's content digest; :mod:`.scene_xml`: scene dicts written as XML;
 - :mod:`.collection`: garbage collection around renders; :mod:`.render_errors`:
-  ``mi.render`` raises the package's errors unwrapped; :mod:`.llvm`: finding libLLVM.
+  ``mi.render`` raises the package's errors unwrapped; :mod:`.llvm`: finding libLLVM;
+- :mod:`.arrays`: numpy setup helpers (distinct values and rows at the speed of a sort,
+  numpy columns in aligned memory so kernels compile once per layout, not per scene).
 
 Rule: imports nothing of the package (and this file imports nothing at all: the package
 configures libLLVM through :mod:`.llvm` before Mitsuba is imported).

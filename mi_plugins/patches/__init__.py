@@ -7,7 +7,10 @@
   whose vertex normals contradict their winding;
 - :mod:`.darkness`: splits where patches lie partly in the dark or are cut by a surface;
   :mod:`.refinement`: adaptive subdivision where a solution varies within a patch;
-  :mod:`.neighbours`: sharing estimates between neighbouring pixels of one patch.
+  :mod:`.neighbours`: sharing estimates between neighbouring pixels of one patch;
+  :mod:`.gaps`: patch sides at the mouth of a gap narrower than a patch;
+- :mod:`.setup_cache`: the disk cache of a scene's setup (patches, dark splits, gap
+  mouths, the smooth field), keyed by content, reused by later renders and processes.
 
 Rule: imports :mod:`mi_plugins.base` and :mod:`mi_plugins.light` only.
 """
