@@ -207,7 +207,9 @@ def test_ray_bundle_gather_takes_them_in_its_frozen_camera_pass(monkeypatch):
     seen = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=1024))
     edge = (seen[..., :3].mean(axis=-1) > 0.15) & (seen[..., :3].mean(axis=-1) < 4.85)
     assert one.var(axis=0, ddof=1)[edge].sum() > 8.0 * eight.var(axis=0, ddof=1)[edge].sum()
-    _, image = integrator.step_cache.steps[integrator.step_cache.last + (True,)]
+    cache = integrator.step_cache
+    assert cache.last not in cache.unfrozen, "the camera pass was not recorded: %s" % cache.errors.get(cache.last)
+    _, image = cache.steps[cache.last + (True,)]
     assert image.recordings == 1
     monkeypatch.setattr(frozen, "ENABLED", False)
     _, plain = runs(8, SEEDS[:1])

@@ -157,6 +157,7 @@ class StepCache:
 
     def __init__(self, size):
         self.size, self.steps, self.unfrozen, self.last = int(size), OrderedDict(), set(), None
+        self.errors = {}            # key -> why its steps could not be recorded
 
     def get(self, key, enabled):
         self.last = key
@@ -172,9 +173,11 @@ class StepCache:
         self.steps.move_to_end(key)
         return self.steps[key]
 
-    def failed(self):
-        """The last key's steps could not be recorded: plain steps from now on."""
+    def failed(self, error=None):
+        """The last key's steps could not be recorded (``error``: Dr.Jit's message, kept in
+        ``errors``): plain steps from now on."""
         self.unfrozen.add(self.last)
+        self.errors[self.last] = str(error)
 
 
 def fingerprint(scene):

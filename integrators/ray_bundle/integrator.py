@@ -196,8 +196,8 @@ class RayBundleIntegrator(SolutionIntegrator):
         steps recorded.)"""
         try:
             return run(*args)
-        except frozen.FreezeFailed:
-            self.step_cache.failed()      # this scene and these settings: plain steps
+        except frozen.FreezeFailed as error:
+            self.step_cache.failed(error)      # this scene and these settings: plain steps
             undo()
             return run(*args)
 
