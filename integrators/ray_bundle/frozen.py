@@ -142,7 +142,11 @@ class FrozenStep:
                 raise
             # Dr.Jit cannot record this step (e.g. a Python plugin calling another plugin
             # through a nested virtual call): the render starts over without freezing
-            raise FreezeFailed(str(error)) from error
+            causes, cause = [str(error)], error.__cause__ or error.__context__
+            while cause is not None and len(causes) < 4:
+                causes.append(str(cause))
+                cause = cause.__cause__ or cause.__context__
+            raise FreezeFailed(" <- ".join(causes)) from error
 
     @property
     def recordings(self):
