@@ -3,7 +3,7 @@ lie partly in the dark (:mod:`mi_plugins.patches.darkness`), and the patch param
 choose its resolution."""
 import numpy as np
 
-from mi_plugins.base.fingerprint import scene_fingerprint
+from mi_plugins.base import fingerprint
 from mi_plugins.base.param_docs import Row
 from mi_plugins.patches import setup_cache, tessellation
 from mi_plugins.patches.darkness import renumbered, split_in_the_dark
@@ -24,13 +24,14 @@ def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, 
     the settings differ from the last call's; ``before_build()`` (e.g. a memory check that
     predicts the patch count: seconds on a million triangles) is called only when a table
     is built."""
-    key = (id(scene), scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide), bool(cluster),
-           int(dark_levels))
-    if not _LAST or _LAST[0][0] != key:
-        if before_build is not None:
-            before_build()
-        table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
-        _LAST[:] = [(key, stored_splits(table, dark_levels))]
+    with fingerprint.held(scene):        # (the key, the mesh parts and the dark rounds hash it once)
+        key = (id(scene), fingerprint.scene_fingerprint(scene), float(h), bool(back_sides), bool(subdivide),
+               bool(cluster), int(dark_levels))
+        if not _LAST or _LAST[0][0] != key:
+            if before_build is not None:
+                before_build()
+            table = MeshTable(scene, who, h=h, back_sides=back_sides, subdivide=subdivide, cluster=cluster)
+            _LAST[:] = [(key, stored_splits(table, dark_levels))]
     return _LAST[0][1]
 
 

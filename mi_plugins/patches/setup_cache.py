@@ -84,19 +84,10 @@ class ShapeOrder:
         self.shape = np.array([free[str(d)].pop(0) for d in stored], dtype=np.int64)   # stored k -> here
         self.identity = bool(np.array_equal(self.shape, np.arange(len(digests))))
         counts = np.diff(np.append(table.face_offsets.astype(np.int64), table.front_count))
-        self.patch = self._blocks(table.face_offsets.astype(np.int64), counts)
+        self.patch = block_index(table.face_offsets.astype(np.int64), counts, self.shape)
         sizes = np.diff(np.append(table.element_offsets, table.element_count))
-        self.element = self._blocks(table.element_offsets, sizes)
+        self.element = block_index(table.element_offsets, sizes, self.shape)
         self.patch_of_stored = np.argsort(self.patch)       # stored patch -> here
-
-    def _blocks(self, offsets, counts):
-        """Index (here -> stored) of items numbered in blocks of ``counts`` per shape."""
-        stored_counts = counts[self.shape]
-        starts = np.concatenate([[0], np.cumsum(stored_counts)[:-1]])
-        index = np.zeros(int(counts.sum()), np.int64)
-        for k, here in enumerate(self.shape):          # (a loop over shapes, not patches)
-            index[offsets[here]:offsets[here] + counts[here]] = starts[k] + np.arange(counts[here])
-        return index
 
     def patches(self, values):
         """Stored front patch numbers ``values`` as numbers here."""
@@ -104,6 +95,18 @@ class ShapeOrder:
 
 
 DIGESTS = "shape digests"
+
+
+def block_index(offsets, counts, order):
+    """Index (here -> stored) of items numbered in blocks per shape: ``counts`` items of
+    shape s starting at ``offsets[s]`` here, stored shape after shape in the order whose
+    k-th shape is shape ``order[k]`` here."""
+    order = np.asarray(order, np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts[order])[:-1]]).astype(np.int64)
+    index = np.zeros(int(np.sum(counts)), np.int64)
+    for k, here in enumerate(order):          # (a loop over shapes, not patches)
+        index[offsets[here]:offsets[here] + counts[here]] = starts[k] + np.arange(counts[here])
+    return index
 
 
 def digests_of(table):

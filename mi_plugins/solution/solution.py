@@ -32,6 +32,7 @@ import os
 import numpy as np
 
 from mi_plugins.base import fingerprint
+from mi_plugins.patches.setup_cache import block_index
 
 FORMAT = 1
 #: what a solution's file holds besides ``meta``
@@ -216,12 +217,9 @@ class Solution:
     def _reorder(self, order, table):
         """Put the patches (stored shape after shape) in the order of ``table``'s shapes."""
         shapes = self.meta["shapes"]
-        starts = np.concatenate([[0], np.cumsum([s["patches"] for s in shapes])])
-        offsets = np.concatenate([[0], np.cumsum(np.bincount(table.shape_index_np[:table.front_count],
-                                                             minlength=len(order)))])
-        index = np.zeros(self.patches, np.int64)
-        for k, target in enumerate(order):    # a permutation of the shapes (not of patches)
-            index[offsets[target]:offsets[target] + shapes[k]["patches"]] = np.arange(starts[k], starts[k + 1])
+        counts = np.bincount(table.shape_index_np[:table.front_count], minlength=len(order))
+        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        index = block_index(offsets, counts, order)    # (load checked the stored counts are these)
         self.tables = self.tables[:, index]
         for name in ("direct", "radiance", "emission", "error", "areas"):
             if getattr(self, name) is not None:
