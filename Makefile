@@ -29,10 +29,10 @@ verify: setup
 	$(VENV)/bin/mi-plugins verify --report reports/full
 
 test: setup
-	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=25
 
 test-extended: setup
-	$(PY) -m pytest -q -n 2 --dist loadfile --extended --durations=25
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --extended --durations=25
 
 clean:
 	rm -rf $(VENV) reports build *.egg-info

@@ -133,9 +133,26 @@ def pytest_collection_finish(session):
     gc.freeze()
 
 
+def file_budgets():
+    """{test file: its budget in seconds} of tests/data/time_budget.json (empty if unreadable)."""
+    try:
+        with open(TIME_BUDGET) as f:
+            return {os.path.basename(k): float(v) for k, v in json.load(f).get("files", {}).items()}
+    except (OSError, ValueError):
+        return {}
+
+
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: k for k, name in enumerate(FIRST)}
-    items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST)))
+    key = lambda item: rank.get(os.path.basename(str(item.fspath)), len(FIRST))
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        # under pytest-xdist with a file per process (``make test``: --dist loadfile
+        # --no-loadscope-reorder) the files are handed out in this order: the longest first,
+        # so that the two processes end together (one 680 s file last would leave a core idle)
+        budgets = file_budgets()
+        key = lambda item, first=key: (-budgets.get(os.path.basename(str(item.fspath)), DEFAULT_FILE_BUDGET),
+                                       first(item))
+    items.sort(key=key)
     if config.getoption("--extended") or os.environ.get("MI_PLUGINS_EXTENDED"):
         return
     left = [item for item in items if item.get_closest_marker("extended")]
