@@ -153,7 +153,7 @@ def test_cell(row, integrator):
     assert cell.ok, repr(cell)       # a PASS detects matrix.POWER_LIMIT (matrix.run's rule)
     if cell.outcome == outcomes.PASS:
         budget.record("coverage", cell.false_failure, row=row, integrator=integrator,
-                      power=None if math.isinf(cell.power) else float(cell.power))
+                      power=None if math.isinf(cell.power) else float(cell.power), z=float(cell.z))
 
 
 # ------------------------------------------------------------------ the matrix's own tests

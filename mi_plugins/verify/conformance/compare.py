@@ -13,7 +13,9 @@ normal z bound, Šidák correction).
    explicit, documented bound for methods biased by design (0 otherwise), *relative* to
    the reference's value, and float32 rounding :func:`rounding`. Where both sides are
    deterministic (SE = 0, e.g. a black image or a block of constant sky) only the bias
-   and rounding are accepted.
+   and rounding are accepted. The bias covers what the runs cannot resolve only: a
+   difference beyond ``t x SE`` (plus rounding) fails whatever the bias allowance, so no
+   passing comparison has |z| above the bound.
 2. **blocks** (backstop for misplaced radiance: a mirrored image, one dark wall):
    the image is cut into ``block`` x ``block`` pixel blocks; Welch's test on each
    block's and channel's per-run means, at a Šidák-corrected family-wise level
@@ -117,6 +119,12 @@ def compare(images, reference, z_bound=Z_BOUND, bias=0.0, block_bias=None, block
         failures.append("image mean %.6g differs from the reference's %.6g by %+.3g > bias %.3g + %.2f SE "
                         "(SE %.3g, z %+.2f, Welch df %.1f)" % (float(a.mean()), ref_mean, diff, bias * abs(ref_mean),
                                                               limit, se, z, df))
+    elif se > 0 and abs(diff) > limit * se + float(rounding(ref_mean)):
+        # a bias allowance covers what the noise cannot resolve, never a difference the
+        # runs measure: beyond the t bound the cell is wrong, whatever the allowance
+        failures.append("image mean %.6g differs from the reference's %.6g by %+.3g: within the bias "
+                        "allowance %.3g but %.2f SE (z %+.2f, bound %.2f): a measured bias, not noise"
+                        % (float(a.mean()), ref_mean, diff, bias * abs(ref_mean), abs(z), z, limit))
 
     # 2. blocks (Welch per block and channel, Sidak-corrected)
     ba, bb = block_means(images, block), block_means(reference, block)

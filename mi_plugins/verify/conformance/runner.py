@@ -40,6 +40,7 @@ class Result:
     bias_reason: str = ""
     tolerance: float = float("nan")
     power: float = float("nan")           # relative bias the mean test detects (probability 1/2)
+    power_limit: float = POWER_LIMIT      # ... and the most it may be for a PASS
     block_failures: int = 0
     block_tests: int = 0
     rmse: float = float("nan")
@@ -153,6 +154,7 @@ def run(scene, integrator, runs=None, spp=None, seed=0, quick=False, resolution=
         res.outcome = outcomes.NA
         return res
     res.runs, res.spp = int(runs or setting.runs), int(spp or setting.spp)
+    res.power_limit = float(spec.power_limit or POWER_LIMIT)
     cpu0 = time.process_time()
     error = None
     try:
@@ -183,9 +185,9 @@ def run(scene, integrator, runs=None, spp=None, seed=0, quick=False, resolution=
     if not quick and black and not res.tolerance <= BLACK_LIMIT:
         res.failures.append("a black reference, and the comparison accepts a mean up to %.3g (limit %g)"
                             % (res.tolerance, BLACK_LIMIT))
-    if not quick and not black and not res.power <= POWER_LIMIT:
+    if not quick and not black and not res.power <= res.power_limit:
         res.failures.append("the comparison detects only a relative error of %.3g %% (limit %.3g %%)"
-                            % (100 * res.power, 100 * POWER_LIMIT))
+                            % (100 * res.power, 100 * res.power_limit))
     res.outcome = outcomes.PASS if out["passed"] and not res.failures else outcomes.FAIL
     if isinstance(setting.expected, outcomes.Refused):
         res.failures.append("rendered, but a refusal matching /%s/ was expected" % setting.expected.pattern)
