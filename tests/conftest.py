@@ -170,6 +170,27 @@ DEFAULT_FILE_BUDGET = 30.0
 _file_seconds = {}
 
 
+#: MI_PLUGINS_KERNEL_LOG=FILE: after every test, append the kernels it compiled (neither in
+#: the process's cache nor on disk) and their compile seconds to FILE (per worker): which
+#: tests pay the compilation of a fresh machine
+KERNEL_LOG = os.environ.get("MI_PLUGINS_KERNEL_LOG")
+if KERNEL_LOG:
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if KERNEL_LOG:
+        dr.kernel_history()
+    yield
+    if KERNEL_LOG:
+        compiled = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT
+                    and not k.get("cache_hit") and not k.get("cache_disk")]
+        seconds = sum(float(k.get("backend_time", 0.0)) + float(k.get("codegen_time", 0.0)) for k in compiled) / 1000
+        with open(KERNEL_LOG, "a") as f:
+            f.write("%s\t%d\t%.3f\n" % (item.nodeid, len(compiled), seconds))
+
+
 def pytest_runtest_logreport(report):
     """Sums each file's seconds; with MI_PLUGINS_TIMES=FILE also appends every test phase's
     seconds to FILE (node id, phase, seconds, outcome; written once, by the controller
