@@ -170,21 +170,6 @@ DEFAULT_FILE_BUDGET = 30.0
 _file_seconds = {}
 
 
-def pool_threads(environ, cores):
-    """Threads of Dr.Jit's pool in one test process: ``MI_PLUGINS_TEST_THREADS`` where set,
-    else under pytest-xdist the cores shared among the processes (``make test``: two
-    processes on two cores, one thread each; measured: four test files 135 s with Dr.Jit's
-    default of a thread per core in each process, 100-112 s with one: the two pools no
-    longer fight over the cores), else None (Dr.Jit's default)."""
-    if environ.get("MI_PLUGINS_TEST_THREADS"):
-        return int(environ["MI_PLUGINS_TEST_THREADS"])
-    workers = int(environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
-    return max(1, cores // workers) if workers > 1 and environ.get("PYTEST_XDIST_WORKER") else None
-
-
-if pool_threads(os.environ, os.cpu_count() or 1):
-    dr.set_thread_count(pool_threads(os.environ, os.cpu_count() or 1))
-
 #: MI_PLUGINS_KERNEL_LOG=FILE: after every test, append the kernels it compiled (neither in
 #: the process's cache nor on disk) and their compile seconds to FILE (per worker): which
 #: tests pay the compilation of a fresh machine

@@ -100,13 +100,3 @@ def test_pyproject_maps_plugin_folders_into_the_package():
     text = open(os.path.join(REPO, "pyproject.toml")).read()
     for folder in ("integrators", "bsdfs", "emitters", "samplers"):
         assert '"mi_plugins.%s" = "%s"' % (folder, folder) in text
-
-
-def test_parallel_test_processes_share_the_cores():
-    """make test's processes split the cores among their Dr.Jit thread pools (tests/conftest.py);
-    a single process keeps Dr.Jit's default, and MI_PLUGINS_TEST_THREADS overrides both."""
-    from conftest import pool_threads
-    worker = {"PYTEST_XDIST_WORKER": "gw0", "PYTEST_XDIST_WORKER_COUNT": "2"}
-    assert pool_threads(worker, 2) == 1 and pool_threads(worker, 8) == 4
-    assert pool_threads({}, 2) is None and pool_threads({"PYTEST_XDIST_WORKER_COUNT": "2"}, 2) is None
-    assert pool_threads(dict(worker, MI_PLUGINS_TEST_THREADS="3"), 2) == 3
