@@ -1,7 +1,7 @@
 """The smooth display's error on an interior of the benchmark family, split into bias and
 noise (docs/solutions.md, "Open cases"): two seeds of each setting against a `path`
-reference whose own noise is taken out (its two halves); bias^2 = mean((a - ref)(b - ref))
-- the reference's noise, noise^2 = the rest of the mean squared error. Also the 8 x 8-pixel
+reference whose own noise is taken out (its two halves), split as the interior benchmark
+splits them (`interior_report.split`); RMSE = sqrt(bias^2 + noise^2). Also the 8 x 8-pixel
 blocks of the two seeds' mean off by more than 1 %, and the image mean's ratio.
 
 Run from the repository root (the reference is cached under the temp dir):
@@ -24,6 +24,7 @@ from mi_plugins.patches.tessellation import default_patch_size  # noqa: E402
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import interior_ladder as ladder  # noqa: E402
+import interior_report as report  # noqa: E402
 import interiors  # noqa: E402
 
 #: (label, integrator dict, spp): the settings of the table
@@ -50,31 +51,28 @@ def main():
     args = p.parse_args()
     if not os.path.exists(ladder.reference_file(args, args.scene)):
         ladder.render_reference(args, args.scene)
-    ref, ref_var, _ = ladder.reference(args, args.scene)
+    ref, ref_var, keep = ladder.reference(args, args.scene)
     d = interiors.scene_dict(args.scene, args.resolution)
-    mean = ref.mean()
+    pct = lambda value: 100 * value / ref.mean()
     print("| `qmc_lighttrace` | seconds | RMSE | bias | noise | 8 x 8 blocks off by > 1 % (worst) | image mean |")
     print("|---|---|---|---|---|---|---|")
     for label, params, spp in SETTINGS:
         images, seconds = [], []
         for seed in (1, 2):
             scene = mi.load_dict(d)
-            params = dict(params)
-            if params.get("patch_size") == "half":
-                params["patch_size"] = 0.5 * default_patch_size(scene)
-            integrator = mi.load_dict(params)
+            settings = dict(params)
+            if settings.get("patch_size") == "half":
+                settings["patch_size"] = 0.5 * default_patch_size(scene)
+            integrator = mi.load_dict(settings)
             t0 = time.perf_counter()
             images.append(np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed), dtype=np.float64))
             seconds.append(time.perf_counter() - t0)
-        e0, e1 = images[0] - ref, images[1] - ref
-        mse = 0.5 * ((e0 ** 2).mean() + (e1 ** 2).mean()) - ref_var.mean()
-        bias2 = (e0 * e1).mean() - ref_var.mean()
-        both = 0.5 * (images[0] + images[1])
-        rel = blocks(both) / blocks(ref) - 1
-        pct = lambda v: 100 * np.sqrt(max(v, 0.0)) / mean
+        parts = report.split(images, ref, ref_var, keep)
+        rel = blocks(np.mean(images, axis=0)) / blocks(ref) - 1
         print("| %s | %.1f | %.2f %% | %.2f %% | %.2f %% | %d of %d (%+.1f %%) | %.4f |" % (
-            label, np.median(seconds), pct(mse), pct(bias2), pct(mse - bias2), int((np.abs(rel) > 0.01).sum()),
-            rel.size, 100 * rel.flat[np.argmax(np.abs(rel))], both.mean() / mean), flush=True)
+            label, np.median(seconds), pct(np.hypot(parts["bias"], parts["noise"])), pct(parts["bias"]),
+            pct(parts["noise"]), int((np.abs(rel) > 0.01).sum()), rel.size, 100 * rel.flat[np.argmax(np.abs(rel))],
+            parts["mean_rel"]), flush=True)
 
 
 if __name__ == "__main__":

@@ -133,13 +133,28 @@ def pytest_collection_finish(session):
     gc.freeze()
 
 
-def file_budgets():
-    """{test file: its budget in seconds} of tests/data/time_budget.json (empty if unreadable)."""
+#: seconds each test file takes on 2 cores (setup, calls and teardowns; a clean checkout,
+#: measured); the summary reports every file over its budget and the total against
+#: TOTAL_BUDGET. A file not listed has DEFAULT_FILE_BUDGET.
+TIME_BUDGET = os.path.join(REPO, "tests", "data", "time_budget.json")
+DEFAULT_FILE_BUDGET = 30.0
+_file_seconds = {}
+
+
+def read_budgets():
+    """({test file as in a node id: its budget in seconds}, total budget) of TIME_BUDGET
+    (no files and 15 minutes where it cannot be read)."""
     try:
         with open(TIME_BUDGET) as f:
-            return {os.path.basename(k): float(v) for k, v in json.load(f).get("files", {}).items()}
+            table = json.load(f)
     except (OSError, ValueError):
-        return {}
+        table = {}
+    return ({k: float(v) for k, v in table.get("files", {}).items()}, float(table.get("total", 15 * 60)))
+
+
+def file_of(nodeid):
+    """The test file of a node id (its budget's key)."""
+    return nodeid.split("::", 1)[0]
 
 
 def pytest_collection_modifyitems(session, config, items):
@@ -149,9 +164,8 @@ def pytest_collection_modifyitems(session, config, items):
         # under pytest-xdist with a file per process (``make test``: --dist loadfile
         # --no-loadscope-reorder) the files are handed out in this order: the longest first,
         # so that the two processes end together (one 680 s file last would leave a core idle)
-        budgets = file_budgets()
-        key = lambda item, first=key: (-budgets.get(os.path.basename(str(item.fspath)), DEFAULT_FILE_BUDGET),
-                                       first(item))
+        budgets = read_budgets()[0]
+        key = lambda item, first=key: (-budgets.get(file_of(item.nodeid), DEFAULT_FILE_BUDGET), first(item))
     items.sort(key=key)
     if config.getoption("--extended") or os.environ.get("MI_PLUGINS_EXTENDED"):
         return
@@ -162,12 +176,6 @@ def pytest_collection_modifyitems(session, config, items):
         items[:] = [item for item in items if id(item) not in kept]
 
 
-#: seconds each test file takes on 2 cores (setup, calls and teardowns; a clean checkout,
-#: measured); the summary reports every file over its budget and the total against
-#: TOTAL_BUDGET. A file not listed has DEFAULT_FILE_BUDGET.
-TIME_BUDGET = os.path.join(REPO, "tests", "data", "time_budget.json")
-DEFAULT_FILE_BUDGET = 30.0
-_file_seconds = {}
 
 
 #: MI_PLUGINS_KERNEL_LOG=FILE: after every test, append the kernels it compiled (neither in
@@ -195,7 +203,7 @@ def pytest_runtest_logreport(report):
     """Sums each file's seconds; with MI_PLUGINS_TIMES=FILE also appends every test phase's
     seconds to FILE (node id, phase, seconds, outcome; written once, by the controller
     under pytest-xdist): the measurements behind tests/data/time_budget.json."""
-    name = report.nodeid.split("::", 1)[0]
+    name = file_of(report.nodeid)
     _file_seconds[name] = _file_seconds.get(name, 0.0) + float(getattr(report, "duration", 0.0))
     if os.environ.get("MI_PLUGINS_TIMES") and not os.environ.get("PYTEST_XDIST_WORKER"):
         with open(os.environ["MI_PLUGINS_TIMES"], "a") as f:
@@ -204,12 +212,7 @@ def pytest_runtest_logreport(report):
 
 def time_report(seconds):
     """Lines of the per-file time report: the files over their budget, and the total."""
-    try:
-        with open(TIME_BUDGET) as f:
-            table = json.load(f)
-    except (OSError, ValueError):
-        table = {}
-    budgets, total_budget = table.get("files", {}), float(table.get("total", 15 * 60))
+    budgets, total_budget = read_budgets()
     over = [(name, t, float(budgets.get(name, DEFAULT_FILE_BUDGET))) for name, t in sorted(seconds.items())
             if t > float(budgets.get(name, DEFAULT_FILE_BUDGET))]
     total = sum(seconds.values())

@@ -50,8 +50,9 @@ class IntegratorSpec:
     {scene: {parameter: value}} merged into ``params``; ``scene_spp``: {scene: spp};
     ``scene_runs``: {scene: runs}; ``not_applicable``: {scene: reason}; ``refused``: {scene: Refused(pattern, reason)};
     ``bias``: {scene: Bias(mean, blocks, reason)}, relative bounds (to the reference's
-    value) of a bias by design; ``power_limit``: the relative error a PASS must detect. The reference is ``path`` at the integrator's
-    ``max_depth`` (Mitsuba's meaning in every package integrator; -1 when not given).
+    value) of a bias by design; ``power_limit``: the relative error a PASS must detect.
+    The reference is ``path`` at the integrator's ``max_depth`` (Mitsuba's meaning in every
+    package integrator; -1 when not given).
     """
     name: str
     params: dict
