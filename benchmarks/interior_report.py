@@ -34,19 +34,35 @@ def errors(image, ref, ref_var, keep):
 def split(images, ref, ref_var, keep):
     """Bias and noise of one budget's renders (one per seed, at least 2): noise^2 = the
     pixels' mean variance over seeds (one render's noise); bias^2 = MSE of the seeds' mean
-    - noise^2 / seeds - the reference's noise^2 (0 where negative); full image and ``keep``."""
+    - noise^2 / seeds - the reference's noise^2 (0 where negative); full image and ``keep``.
+    ``bias2_se`` (and ``_x``): the standard error of that bias^2 estimate, from its
+    per-pixel terms (the mean over pairs of seeds of their errors' product, less the
+    reference's noise^2) taken as independent: near emitters these terms are heavy-tailed
+    (a lamp's edge pixels), and with 2 seeds a bias of 0.4 % of the image mean can carry
+    an SE of a third of its square; the spatial correlation of the errors makes the true
+    SE larger still."""
     a = np.stack(images)
     n = len(a)
     var = np.mean(np.var(a, axis=0, ddof=1), axis=-1)
     mse = np.mean((a.mean(axis=0) - ref) ** 2, axis=-1)
     rv = np.mean(ref_var, axis=-1) if ref_var.ndim == 3 else ref_var
+    terms = mse - var / n - rv            # per pixel: an unbiased estimate of its bias^2
     out = {}
     for suffix, m in (("", Ellipsis), ("_x", keep)):
         noise2 = float(np.mean(var[m]))
         out["noise" + suffix] = math.sqrt(noise2)
         out["bias" + suffix] = math.sqrt(max(float(np.mean(mse[m])) - noise2 / n - float(np.mean(rv[m])), 0.0))
+        t = terms[m].ravel()
+        out["bias2_se" + suffix] = float(np.std(t, ddof=1) / math.sqrt(t.size))
     out["mean_rel"] = float(a.mean() / ref.mean())
     return out
+
+
+def bias_range(parts, suffix="", z=2.0):
+    """(low, high): the bias of :func:`split` at -z and +z standard errors of its square
+    (0 where the square's bound is negative)."""
+    b2, se = parts["bias" + suffix] ** 2, parts["bias2_se" + suffix]
+    return math.sqrt(max(b2 - z * se, 0.0)), math.sqrt(max(b2 + z * se, 0.0))
 
 
 # ---------------------------------------------------------------------------- curves at equal time
