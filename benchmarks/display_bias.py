@@ -35,6 +35,8 @@ SETTINGS = [
     ("smooth, 100 k paths, 32 spp", {"type": "qmc_lighttrace", "display": "smooth", "samples": 100000}, 32),
     ("smooth, 400 k, 128 spp", {"type": "qmc_lighttrace", "display": "smooth", "samples": 400000}, 128),
     ("smooth, 1.6 M, 512 spp", {"type": "qmc_lighttrace", "display": "smooth", "samples": 1600000}, 512),
+    ("smooth, 1.6 M, 512 spp, reading every patch, 4 gather samples (the former defaults)",
+     {"type": "qmc_lighttrace", "display": "smooth", "samples": 1600000, "crowd_reach": 0.0, "gather_samples": 4}, 512),
     ("gather, 1.6 M, 128 spp", {"type": "qmc_lighttrace", "samples": 1600000}, 128),
     ("smooth, half the patch size, 1.6 M, 512 spp", {"type": "qmc_lighttrace", "display": "smooth",
                                                     "samples": 1600000, "patch_size": "half"}, 512),

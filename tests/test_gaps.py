@@ -122,7 +122,7 @@ def test_the_light_trapped_over_the_lamp_does_not_leak(display, reference, monke
     (:func:`test_a_display_does_not_show_the_mouths_averages`)."""
     ref, ref_se = reference
     settings = {"type": "qmc_lighttrace", "display": display}
-    spp = 128 if display == "gather" else 16         # (the gather's runs: skewed at fewer samples)
+    spp = 128     # (the gathers' runs, the smooth display's at the box's crowded patches: skewed at fewer samples)
     mean, se = _means(flipped_box(), settings, spp, 8, 71)
     budget.close(mean, ref, np.hypot(se, ref_se), what="qmc_lighttrace %s / ptracer" % display)
     if display == "gather":

@@ -103,7 +103,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.batch = p.int("batch", 1000, lo=1, hi=MAX_PATHS)
         self.patience = p.int("patience", 2, lo=1)
         self.max_samples = p.int("max_samples", 10000000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
-        self.gather_samples = p.int("gather_samples", 4, lo=1, hi=MAX_GATHER)
+        self.gather_samples = p.int("gather_samples", None, lo=1, hi=MAX_GATHER,
+                                    note="optional: 4 with display 'gather', 1 in the display modes")
         self.share_neighbors = p.bool("share_neighbors", False)
         self.mirror_depth = p.int("mirror_depth", -1, lo=-1, note="-1: as far as max_depth allows")
         self.patch_size, self.subdivide, self.cluster = patch_parameters(p)
@@ -119,6 +120,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                                                     "refinement follows the particle phase's fixed ranges)")
         self.refinements = []
         self.read_display(p)
+        if self.gather_samples is None:      # (the display modes gather at every camera sample of a pixel)
+            self.gather_samples = 4 if self.display == "gather" else 1
         if self.display != "gather" and self.share_neighbors:
             raise p.conflict(("share_neighbors", "display"), "share_neighbors=true with display='gather' only (it "
                                                              "averages the gather samples of neighbouring pixels)")

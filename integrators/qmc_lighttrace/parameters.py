@@ -26,7 +26,9 @@ ROWS = (
     Row("batch", "int", "1000", "Delta N, 1 .. 2^32"),
     Row("patience", "int", "2", "T >= 1 consecutive batches below ``epsilon``"),
     Row("max_samples", "int", "10^7", "1 .. 2^32, cap for the adaptive termination"),
-    Row("gather_samples", "int", "4", "SR gather samples per eye ray, 1 .. 1024"),
+    Row("gather_samples", "int", "4 (``display`` 'gather'), 1 (the display modes)",
+        "SR gather samples per eye ray, 1 .. 1024; the display modes gather only where they do not read the "
+        "solution (glossy points, gap mouths, crowded patches), at every camera sample"),
     Row("share_neighbors", "bool", "false",
         "average the gather samples' results with the 8 neighbouring pixels seeing the same side of the same "
         "diffuse patch (a smoothing bias)"),

@@ -41,6 +41,8 @@ from mi_plugins.light.direct import direct_light, needs_bsdf_sample
 DISPLAYS = ("gather", "smooth", "patches", "baked")
 #: camera rays per camera sample for the emission seen directly (``emitter_samples``)
 DEFAULT_EMITTER_SAMPLES = 8
+#: ``crowd_reach``: patch sizes within which a facing surface makes the smooth display gather
+DEFAULT_CROWD_REACH = 1.0
 MAX_EMITTER_SAMPLES = 64
 #: camera lanes of one display pass at the most (a render of more is split into passes)
 MAX_PASS_LANES = 1 << 22
@@ -91,12 +93,15 @@ class SmoothTables:
 
 class View:
     """A solution read by one render: ``mode`` (one of DISPLAYS but 'gather'), the
-    scene's patch ``table`` (the solution's patch numbering)."""
+    scene's patch ``table`` (the solution's patch numbering); ``crowd_reach``: the smooth
+    display gathers at the crowded patches (``mi_plugins.patches.crowding``; the other
+    modes, and a solution whose tables carry the direct light, show what it stores)."""
 
-    def __init__(self, solution, table, mode):
+    def __init__(self, solution, table, mode, crowd_reach=0.0):
         self.mode, self.table, self.solution = mode, table, solution
-        self.surfaces = Surfaces(table.scene, table)
-        self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_mouth
+        gathers = mode == "smooth" and not solution.direct_in_tables      # (else all from the patches)
+        self.surfaces = Surfaces(table.scene, table, crowd_reach if gathers else 0.0)
+        self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_unread
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
         self.adds_direct = not solution.direct_in_tables

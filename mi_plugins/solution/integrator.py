@@ -41,6 +41,11 @@ DISPLAY_ROWS = (
     Row("emitter_samples", "int", "8",
         "1 .. 64: camera rays per camera sample for the emission seen directly, in the pixels on a visible "
         "emitter's edge only, at the points of a rank-1 lattice across the pixel; 1: off"),
+    Row("crowd_reach", "float", "1",
+        ">= 0: the smooth display gathers (a light sample and a BSDF sample on to the next patch) instead of "
+        "reading the stored light at the patches where other surfaces stand within this many of the patch's "
+        "size (corners, junctions, shelves, contact lines: ``mi_plugins.patches.crowding``), where the light "
+        "changes within a patch; 0: read at every patch"),
     Row("preview_every", "int", "0",
         ">= 0: with ``integrator.preview_callback = f(image, done, total)`` set, every N steps of a solve "
         "the image of the solution so far (one sample per pixel); 0: none"),
@@ -56,6 +61,8 @@ class SolutionIntegrator(CoreIntegrator):
         self.preview_every = p.int("preview_every", 0, lo=0, note="0: no previews")
         self.emitter_samples = p.int("emitter_samples", display.DEFAULT_EMITTER_SAMPLES, lo=1,
                                      hi=display.MAX_EMITTER_SAMPLES)
+        self.crowd_reach = p.float("crowd_reach", display.DEFAULT_CROWD_REACH, lo=0,
+                                   note="0: read the stored light at every patch")
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
@@ -129,7 +136,7 @@ class SolutionIntegrator(CoreIntegrator):
     def render_display(self, frame, solution, table, steps=None):
         """The frame's image from ``solution`` in this integrator's display mode."""
         solution.complete(frame.scene, table)
-        view = display.View(solution, table, self.display)
+        view = display.View(solution, table, self.display, self.crowd_reach)
         display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
                        getattr(self, "gather_samples", 1), steps, self.emitter_samples)
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from mi_plugins.base.arrays import jit
 from mi_plugins.base import queries
+from mi_plugins.patches.crowding import crowded_patches
 from mi_plugins.patches.gaps import mouth_patches
 
 #: BSDF wrappers whose reflection depends on a perturbed frame (Mitsuba class names)
@@ -42,12 +43,14 @@ def purely_diffuse(bsdf):
 
 class Surfaces:
     """Per-shape classification of a scene, for kernels: :meth:`diffuse` per hit; with the
-    scene's patch ``table``, :meth:`readable` too."""
+    scene's patch ``table``, :meth:`readable` too; ``crowd_reach`` (the smooth display's):
+    the crowded patches are not read either (:mod:`mi_plugins.patches.crowding`)."""
 
-    def __init__(self, scene, table=None):
-        mouths = mouth_patches(table) if table is not None else np.zeros(0, bool)
-        self.table, self.any_mouth = table, bool(mouths.any())
-        self._mouth = jit(mi.UInt32, np.concatenate([mouths, [False, False]]))   # (never width 1)
+    def __init__(self, scene, table=None, crowd_reach=0.0):
+        unread = mouth_patches(table) | crowded_patches(table, crowd_reach) if table is not None \
+            else np.zeros(0, bool)
+        self.table, self.any_unread = table, bool(unread.any())
+        self._unread = jit(mi.UInt32, np.concatenate([unread, [False, False]]))   # (never width 1)
         shapes = list(scene.shapes())
         self.diffuse_np = np.array([purely_diffuse(s.bsdf()) for s in shapes], dtype=bool)
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64) if shapes else \
@@ -69,12 +72,13 @@ class Surfaces:
     def readable(self, si, active=True):
         """Per lane: :meth:`diffuse`, and not on a patch at the mouth of a narrow gap
         (:mod:`mi_plugins.patches.gaps`: its one value mixes the light trapped in the gap with the
-        open side's); a camera path continues at the other diffuse hits, as on a glossy
-        surface, instead of reading the stored light there."""
+        open side's) or, with ``crowd_reach``, on a crowded patch; a camera path continues
+        at the other diffuse hits, as on a glossy surface, instead of reading the stored
+        light there."""
         diffuse = self.diffuse(si, active)
-        if not self.any_mouth:
+        if not self.any_unread:
             return diffuse
-        return diffuse & (dr.gather(mi.UInt32, self._mouth, self.table.patch(si), diffuse) == 0)
+        return diffuse & (dr.gather(mi.UInt32, self._unread, self.table.patch(si), diffuse) == 0)
 
 
 def geometric_cosine(si, local):
