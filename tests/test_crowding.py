@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import budget
+from mi_plugins.patches import crowding
 from mi_plugins.patches.crowding import crowded_patches
 from mi_plugins.patches.meshtable import MeshTable
 from mi_plugins.verify.conformance import runner
@@ -33,10 +34,10 @@ def shelf_room():
     return scene
 
 
-def test_the_crowded_patches_are_those_with_a_surface_close_by():
+def test_the_crowded_patches_are_those_with_a_surface_close_by(monkeypatch):
     """Crowded: most of the floor's patches beside the block and of the wall's beside the boards;
-    not the middle of the floor or the ceiling around the lamp; more reach, more patches;
-    none at reach 0; deterministic."""
+    not the middle of the floor; more reach, more patches; none at reach 0; deterministic,
+    in one block of patches or many; never an emitting shape's."""
     scene = mi.load_dict(shelf_room())
     table = MeshTable(scene, "test", h=0.2)
     centre = np.array(table.surface_interaction(dr.arange(mi.UInt32, table.front_count), mi.Point2f(0.5)).p).T
@@ -44,6 +45,8 @@ def test_the_crowded_patches_are_those_with_a_surface_close_by():
     near, far = crowded_patches(table, 1.0), crowded_patches(table, 2.0)
     assert not crowded_patches(table, 0.0).any()
     assert np.all(far[near]) and far.sum() > near.sum()
+    assert np.array_equal(near, crowded_patches(MeshTable(scene, "test", h=0.2), 1.0))
+    monkeypatch.setattr(crowding, "CHUNK", 7)           # (blocks of patches: the same answer)
     assert np.array_equal(near, crowded_patches(MeshTable(scene, "test", h=0.2), 1.0))
     floor = room & (centre[:, 1] < -1.49)
     beside_block = floor & (np.abs(centre[:, 0] - 0.9) < 0.45) & (np.abs(centre[:, 2] + 0.3) < 0.45)
@@ -54,6 +57,8 @@ def test_the_crowded_patches_are_those_with_a_surface_close_by():
     assert near[beside_block].mean() > 0.5 and near[beside_boards].mean() > 0.5, (
         near[beside_block].mean(), near[beside_boards].mean())
     assert not near[open_floor].any()
+    lamp = np.array([s.emitter() is not None for s in table.shapes])[table.shape_index_np[:table.front_count]]
+    assert lamp.any() and not far[lamp].any()           # (an emitting shape is never crowded)
 
 
 def _blocks(integrator, spp, seed, runs):
@@ -64,18 +69,19 @@ def _blocks(integrator, spp, seed, runs):
 
 @pytest.fixture(scope="module")
 def reference():
-    return _blocks({"type": "path"}, 2048, 90, 8)
+    return _blocks({"type": "path"}, 1024, 90, 8)
 
 
 def test_the_smooth_display_along_the_shelf_and_the_block(reference):
     """``qmc_lighttrace``'s smooth display at its default ``crowd_reach`` matches ``path``
-    in every 8 x 8-pixel block within the noise and 0.5 % of stated bias (the smooth
-    display's: docs/solutions.md). Test of the test: reading the stored light at the crowded
-    patches too (``crowd_reach`` 0) puts the blocks along the shelf 1-1.5 % too dark
-    (z -10 and beyond with 800 000 particle paths)."""
+    in every 8 x 8-pixel block within the noise and 0.3 % of stated bias (the smooth
+    display's: docs/solutions.md; the largest deviation measured 0.3-0.4 of that bound).
+    Test of the test: reading the stored light at the crowded patches too (``crowd_reach``
+    0) puts the blocks along the shelf about 1-1.5 % too dark, 1.2-1.6 times the bound
+    (two seed sets; z -10 and beyond at 800 000 particle paths)."""
     ref, ref_se = reference
-    settings = {"type": "qmc_lighttrace", "display": "smooth", "samples": 800000}
-    slack = 0.005 * ref
+    settings = {"type": "qmc_lighttrace", "display": "smooth", "samples": 400000}
+    slack = 0.003 * ref
     mean, se = _blocks(settings, 64, 91, 8)
     budget.close(mean, ref, np.hypot(se, ref_se), slack=slack, what="smooth display's blocks / path")
     bad, bad_se = _blocks(dict(settings, crowd_reach=0.0), 64, 91, 8)
