@@ -176,8 +176,6 @@ def pytest_collection_modifyitems(session, config, items):
         items[:] = [item for item in items if id(item) not in kept]
 
 
-
-
 #: MI_PLUGINS_KERNEL_LOG=FILE: after every test, append the kernels it compiled (neither in
 #: the process's cache nor on disk) and their compile seconds to FILE (per worker): which
 #: tests pay the compilation of a fresh machine

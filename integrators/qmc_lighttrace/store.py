@@ -31,6 +31,9 @@ class Layers:
     paths read the stored light at the visible point itself (the display modes of a
     solution), not only after a gather segment."""
 
+    #: the tables hold the light of k >= 2 hits only (the direct light: next-event estimation)
+    carries_direct = False
+
     def __init__(self, max_depth, visible=False):
         self.unbounded = max_depth < 0
         # the largest hit count a camera path can still read: k <= D - 2 (camera + gather

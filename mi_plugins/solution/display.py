@@ -63,6 +63,7 @@ class ReadTables:
 
     def __init__(self, tables, direct_in_tables=False):
         self.tables, self.shift = tables, 1 if direct_in_tables else 0
+        self.carries_direct = bool(direct_in_tables)       # (a read then holds the direct light too)
 
     def read_table(self, budget):
         """(table index, readable) for paths that may still add ``budget`` segments."""
@@ -95,12 +96,11 @@ class View:
     """A solution read by one render: ``mode`` (one of DISPLAYS but 'gather'), the
     scene's patch ``table`` (the solution's patch numbering); ``crowd_reach``: the smooth
     display gathers at the crowded patches (``mi_plugins.patches.crowding``; the other
-    modes, and a solution whose tables carry the direct light, show what it stores)."""
+    modes show what the solution stores)."""
 
     def __init__(self, solution, table, mode, crowd_reach=0.0):
         self.mode, self.table, self.solution = mode, table, solution
-        gathers = mode == "smooth" and not solution.direct_in_tables      # (else all from the patches)
-        self.surfaces = Surfaces(table.scene, table, crowd_reach if gathers else 0.0)
+        self.surfaces = Surfaces(table.scene, table, crowd_reach if mode == "smooth" else 0.0)
         self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_unread
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)

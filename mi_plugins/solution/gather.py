@@ -158,10 +158,14 @@ class CameraPaths:
             go = active & hit.is_valid() & ~last & (segment < depth)
             bsdf = hit.bsdf(ray)
             diffuse = surfaces.readable(hit, go)      # (a patch at a gap's mouth: continue)
-            result += beta * light_sample(scene, hit, bsdf, mi.Point2f(rng.next_float32(go), rng.next_float32(go)), go)
             # a diffuse hit: the stored light of particle hits k >= 2 that fit in the depth left
             index, readable = layers.read_table(mi.Int32(depth) - mi.Int32(segment))
             read = go & diffuse & readable
+            # tables that carry the direct light too (ray_bundle without first_shot) hold all
+            # of it where read: no light sample there, and no segment on for the emission
+            sample = go & ~read if layers.carries_direct else go
+            result += beta * light_sample(scene, hit, bsdf, mi.Point2f(rng.next_float32(go), rng.next_float32(go)),
+                                          sample)
             result += dr.select(read, beta * stored(hit, index, read) * reflectance_toward(bsdf, hit, read), 0.0)
             # the next segment: after a diffuse hit only to see its emission (MIS)
             bs, weight = bsdf.sample(mi.BSDFContext(), hit, rng.next_float32(go),
@@ -174,6 +178,8 @@ class CameraPaths:
             beta = dr.select(roulette, beta / dr.select(survive > 0, survive, 1.0), beta)
             mirrored = mirrored + dr.select(delta, 1, 0)
             go &= (bs.pdf > 0) & dr.any(beta != 0) & (mirrored <= mirrors)
+            if layers.carries_direct:
+                go &= ~read
             return (hit.spawn_ray(hit.to_world(bs.wo)), beta, go, diffuse, segment,
                     mi.SurfaceInteraction3f(hit), bs.pdf, delta, mirrored, rng, result)
 
