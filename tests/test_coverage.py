@@ -54,12 +54,30 @@ KNOWN_DEFECTS = {
         "now and then a gather reads the light trapped 0.5 cm over a lamp, hundreds of times the room's; at 16 runs "
         "it detects 23-29 % (128 and 1024 spp, 100 000 and 800 000 paths; 18 % with 4 gather samples); "
         "below 10 % when the crowded patches are read (the cell passed); the mean stays right (z -0.1 .. +1.1)"),
+    ("sensor:radiancemeter", "ray_bundle:patches"): (
+        "blind and biased: the flat display shows the average of the patch the meter's point lies on, not the "
+        "point's radiance: -2.7 .. -10.3 % (z -4.1 at seed 2002), detecting 14.5-21 % at the smooth display's "
+        "24 runs over seeds 2000-2002 (the smooth and baked displays pass)"),
+    ("sensor:radiancemeter", "qmc_lighttrace:patches"): (
+        "blind and biased: the flat display shows the average of the patch the meter's point lies on: -4.2 .. "
+        "-12.3 % (z -5.3 at seed 2002), detecting 12.5-17.7 % at 32 runs over seeds 2000-2002"),
+    ("case:open_many_emitters", "ray_bundle:patches"): (
+        "blind: the open scene's few large patches under four lamps, each showing its stored direct light, "
+        "vary from solve to solve: 21.6-42 % at 12 runs over seeds 2000-2002 (means -1.3 .. +15.6 %, z <= 3.5); "
+        "the smooth display, which samples the direct light at every point, detects 1.4-1.6 %"),
+    ("case:open_many_emitters", "qmc_lighttrace:patches"): (
+        "blind: as ray_bundle's flat display there, 24.7-40 % at 8 runs over seeds 2000-2002 (means +4.7 .. "
+        "+6.3 %, z <= 2.3); the smooth display detects 2.5-4.2 %"),
 }
 #: cells whose defect shows at some seeds only: heavy-tailed runs (one run far above the
 #: others) leave them blind to POWER_LIMIT at some seeds at every budget a test can afford,
 #: and their bias is below what they can see; expected failures that may pass (XPASS, never
 #: a PASS): {(row, integrator): the measured defect}
-INTERMITTENT_DEFECTS = {}
+INTERMITTENT_DEFECTS = {
+    ("case:gap_lamps_2cm", "qmc_lighttrace:smooth"): (
+        "heavy-tailed, as the 0.5 cm gap's cell (KNOWN_DEFECTS): the gathers at the crowded patches beside the "
+        "lamps now and then read the light trapped 2 cm over a lamp; 15 % at seed 2000 (16 runs), mean +0.5 %"),
+}
 
 
 def row_cells():

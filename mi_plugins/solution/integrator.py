@@ -67,6 +67,7 @@ class SolutionIntegrator(CoreIntegrator):
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
         self._given = None           # a Solution handed over by use_solution
+        self.last_solution = None    # the solution of the last render in a display mode (or solve)
         self.dark_record = None      # dark splits to replay (a distributed render's; None: its own)
 
     # ------------------------------------------------------------------ hooks
@@ -98,8 +99,12 @@ class SolutionIntegrator(CoreIntegrator):
         given = self._given
         if given is not None and given.meta["fingerprint"] == key[1] and given.seed == int(seed) \
                 and given.meta.get("settings_key") == settings:
+            # (a scene of the same content loaded anew may list its shapes in another order)
+            given = self._given = given.for_scene(scene)
+            self.last_solution = given
             return given
         if self._cached is not None and self._cached[0] == key:
+            self.last_solution = self._cached[1]
             return self._cached[1]
         preview = self._previewer(scene, sensor, table) if self.preview_every and self.preview_callback else None
         start = time.perf_counter()
@@ -108,6 +113,7 @@ class SolutionIntegrator(CoreIntegrator):
         self.solve_count += 1
         if not self.progress.interrupted:
             self._cached = (key, solution)
+        self.last_solution = None if self.progress.interrupted else solution
         return solution
 
     def solve(self, scene, seed=0):

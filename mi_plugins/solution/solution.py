@@ -180,15 +180,32 @@ class Solution:
         """The solution stored in ``path``, for ``scene`` (refused with SolutionMismatch when
         the scene does not match: shape count, each shape's triangles, patches and
         content), its patches in ``scene``'s order."""
-        from mi_plugins.patches.meshtable import MeshTable
-        from mi_plugins.solution.patchfield import field_of
         with np.load(path) as data:
             meta = json.loads(bytes(data["meta"]).decode())
             arrays = {name: data[name] for name in ARRAYS if name in data}
         if meta.get("format") != FORMAT:
             raise SolutionMismatch("%s: solution format %s; this version reads format %d"
                                    % (path, meta.get("format"), FORMAT))
-        solution = cls(arrays["tables"], arrays["areas"], meta, arrays.get("error"), meta.get("direct_in_tables", False),
+        return cls._homed(arrays, meta, meta.get("direct_in_tables", False), scene, path)
+
+    def for_scene(self, scene):
+        """This solution with its patches numbered as ``scene``'s: itself where ``scene``
+        lists the shapes in the order of the scene it was solved for, else a copy in
+        ``scene``'s order (Mitsuba may load the shapes of one file in another order each
+        time); refused with SolutionMismatch as :meth:`load` for another scene."""
+        if [s["digest"] for s in self.meta["shapes"]] == fingerprint.shape_digests(scene):
+            return self
+        arrays = {name: getattr(self, name) for name in ARRAYS if getattr(self, name) is not None}
+        meta = json.loads(json.dumps(self.meta))
+        return type(self)._homed(arrays, meta, self.direct_in_tables, scene, "solution")
+
+    @classmethod
+    def _homed(cls, arrays, meta, direct_in_tables, scene, where):
+        """A solution of ``arrays`` and ``meta`` (the patches in the order of ``meta['shapes']``),
+        renumbered for ``scene`` and its patch geometry rebuilt."""
+        from mi_plugins.patches.meshtable import MeshTable
+        from mi_plugins.solution.patchfield import field_of
+        solution = cls(arrays["tables"], arrays["areas"], meta, arrays.get("error"), direct_in_tables,
                        direct=arrays.get("direct"), radiance=arrays.get("radiance"), emission=arrays.get("emission"))
         order = solution.check_scene(scene)
         from mi_plugins.patches.darkness import renumbered, split_in_the_dark, split_recorded
@@ -209,7 +226,7 @@ class Solution:
         for stored, index in zip(meta["shapes"], order):
             if counts[index] != stored["patches"]:
                 raise SolutionMismatch("%s: shape '%s' has %d patches here and %d in the solution"
-                                       % (path, stored["id"], counts[index], stored["patches"]))
+                                       % (where, stored["id"], counts[index], stored["patches"]))
         solution._reorder(order, table)
         solution.field = field_of(table)
         return solution

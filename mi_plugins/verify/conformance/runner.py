@@ -2,14 +2,12 @@
 import gc
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 
-import mitsuba as mi
 import numpy as np
 
 from mi_plugins.verify.conformance import compare as comparison
-from mi_plugins.verify.conformance import expectations, outcomes
+from mi_plugins.verify.conformance import expectations, outcomes, renders
 from .scene_library import SCENES
 
 #: references already rendered in this process: {key: (images, seconds)}
@@ -88,23 +86,9 @@ def _seeds(seed, runs, stream):
 
 def render_runs(scene_dict, integrator, spp, seeds):
     """Load ``scene_dict`` and ``integrator`` (a dict) and render one image per seed:
-    (runs, H, W, C) float64 array, seconds, warning messages.
-
-    The integrator is loaded on its own and passed to ``mi.render`` rather than put into
-    the scene: an integrator that keeps the scene (e.g. a per-triangle table) would
-    otherwise form a reference cycle through C++ that Python cannot collect, and every
-    leaked scene slows down all later renders of the process (Dr.Jit traces every live
-    plugin instance)."""
-    t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as records:
-        warnings.simplefilter("always")
-        scene = mi.load_dict(dict(scene_dict))
-        integ = mi.load_dict(dict(integrator))
-        images = [np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=s), dtype=np.float64)
-                  for s in seeds]
-        caught = sorted({str(w.message) for w in records})
-    del scene, integ
-    return np.stack(images), time.perf_counter() - t0, caught
+    (runs, H, W, C) float64 array, seconds, warning messages (:mod:`.renders`)."""
+    images, times, caught = renders.render_seeds(scene_dict, integrator, spp, seeds)
+    return images, float(sum(times)), caught
 
 
 def reference(scene, max_depth=-1, resolution=16, spp=None, runs=None, seed=0, quick=False):

@@ -23,15 +23,12 @@ the expected one fails the suite.
 """
 import gc
 import math
-import time
-import warnings
 from dataclasses import dataclass, field
 
-import mitsuba as mi
 import numpy as np
 
 from mi_plugins.verify.conformance import compare as comparison
-from mi_plugins.verify.conformance import outcomes
+from mi_plugins.verify.conformance import outcomes, renders
 from mi_plugins.verify.conformance.runner import _seeds
 from mi_plugins.verify.coverage import expected as expectations
 from mi_plugins.verify.coverage.rows import all_rows
@@ -114,20 +111,8 @@ def _render(scene_dict, integrator_dict, spp, seeds):
     """(images (runs, H, W, C), seconds per run, warnings); images are float64. The seconds
     are the median over the runs: the first run also compiles the scene's kernels, and a
     run that shared the machine with another process's burst does not set the ratio."""
-    with warnings.catch_warnings(record=True) as records:
-        warnings.simplefilter("always")
-        scene = mi.load_dict(scene_dict)
-        integ = mi.load_dict(integrator_dict)
-        images, times = [], []
-        for s in seeds:
-            t0 = time.perf_counter()
-            images.append(np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=s), dtype=np.float64))
-            times.append(time.perf_counter() - t0)
-        seconds = float(np.median(times)) if times else 0.0
-        caught = sorted({str(w.message) for w in records})
-    del scene, integ
-    gc.collect()    # free the scene now: Dr.Jit traces every live plugin instance in later renders
-    return np.stack(images), seconds, caught
+    images, times, caught = renders.render_seeds(scene_dict, integrator_dict, spp, seeds)
+    return images, float(np.median(times)) if times else 0.0, caught
 
 
 def depth_of(row):
