@@ -233,6 +233,35 @@ def test_reference_matches_the_exact_value():
                  what="path in cube_inside")
 
 
+def test_display_cells_render_the_smooth_cells_solves():
+    """The patches and baked cells of a scene render the solves of the smooth cell before
+    them, seed by seed, and give the images they would give solving themselves; other
+    settings, another scene or another seed never take them."""
+    from mi_plugins.verify.conformance import renders, scene_library
+    scene = scene_library.SCENES["cornell_mesh"][0](8)
+    smooth = {"type": "qmc_lighttrace", "samples": 4000, "display": "smooth"}
+    seeds = [11, 12]
+    renders.forget()
+    renders.render_seeds(scene, smooth, 2, seeds)
+    kept = dict(renders._SHARED[2])
+    assert sorted(kept) == seeds
+    shared, _, _ = renders.render_seeds(scene, dict(smooth, display="patches"), 2, seeds + [13])
+    assert all(renders._SHARED[2][s] is kept[s] for s in seeds) and 13 in renders._SHARED[2]
+    renders.forget()
+    alone, _, _ = renders.render_seeds(scene, dict(smooth, display="patches"), 2, seeds + [13])
+    assert np.allclose(shared, alone, rtol=1e-5, atol=1e-7)
+    renders.render_seeds(scene, smooth, 2, seeds)
+    kept = dict(renders._SHARED[2])
+    renders.render_seeds(scene, dict(smooth, samples=5000), 2, seeds)
+    assert all(renders._SHARED[2].get(s) is not kept[s] for s in seeds)
+    assert renders._family(scene, dict(smooth, display="gather")) is None
+    renders.render_seeds(scene, smooth, 2, seeds)
+    kept = dict(renders._SHARED[2])
+    renders.render_seeds(scene_library.SCENES["cornell_mesh"][0](12), dict(smooth, display="patches"), 2, seeds)
+    assert all(renders._SHARED[2].get(s) is not kept[s] for s in seeds)
+    renders.forget()
+
+
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 def test_same_seed_gives_the_same_image(integrator):
     """One seed, three renders: the same image up to the order of float additions in the

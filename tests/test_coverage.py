@@ -77,6 +77,15 @@ INTERMITTENT_DEFECTS = {
     ("case:gap_lamps_2cm", "qmc_lighttrace:smooth"): (
         "heavy-tailed, as the 0.5 cm gap's cell (KNOWN_DEFECTS): the gathers at the crowded patches beside the "
         "lamps now and then read the light trapped 2 cm over a lamp; 15 % at seed 2000 (16 runs), mean +0.5 %"),
+    ("case:gap_lamps_5cm", "qmc_lighttrace:smooth"): (
+        "heavy-tailed as the narrower gaps' cells, and biased: z -5.8 at seed 0 (a PASS by the t bound of its "
+        "16 skewed runs)"),
+    ("bsdf:dielectric", "qmc_lighttrace:patches"): (
+        "biased: the floor seen through the glass sphere shows flat patch values where the caustic under the "
+        "sphere varies within a patch: -1.3 .. -1.5 % (z -5.8 .. -7.4 at 16 runs over seeds 0, 2000-2001; a "
+        "FAIL at seed 2000, a PASS by the t bound at the others); the smooth display -0.5 .. -0.6 % (z > -2)"),
+    ("bsdf:dielectric", "qmc_lighttrace:baked"): (
+        "biased as the flat display there: -1.0 .. -1.3 % (z -4.6 .. -5.8 at 16 runs over seeds 0, 2000-2001)"),
 }
 
 
