@@ -5,7 +5,8 @@ The display modes of a finite-element integrator (``'smooth'``, ``'patches'``,
 ``'baked'``) show one solution in three ways. A cell of one display mode renders with the
 solutions another display mode's cell of the same scene and settings has already solved
 in this process, seed by seed (kept here with their scene object, the last family's
-only), so that the suites check every display mode for the price of one solve per run;
+only), so that the suites check every display mode for the price of one solve per run
+(a display mode rendered again solves again: repeated renders stay independent);
 the comparison is the same as if the cell had solved itself (the same seed gives the
 same solution, up to the order of float additions). A solve is never shared between
 seeds.
@@ -18,8 +19,9 @@ import mitsuba as mi
 import numpy as np
 
 
-#: the last shared family: [family key, its scene object, {seed: Solution}]
-_SHARED = [None, None, {}]
+#: the last shared family: [family key, its scene object, {seed: Solution}, the display
+#: modes that rendered them]
+_SHARED = [None, None, {}, set()]
 
 
 def _family(scene_dict, integrator_dict):
@@ -49,15 +51,16 @@ def render_seeds(scene_dict, integrator_dict, spp, seeds):
     with warnings.catch_warnings(record=True) as records:
         warnings.simplefilter("always")
         family = _family(scene_dict, integrator_dict)
-        if family is not None and family == _SHARED[0]:
-            scene = _SHARED[1]
-        else:
-            scene = mi.load_dict(dict(scene_dict))
+        display = integrator_dict.get("display")
+        shared = family is not None and family == _SHARED[0] and display not in _SHARED[3]
+        scene = _SHARED[1] if shared else mi.load_dict(dict(scene_dict))
         integ = mi.load_dict(dict(integrator_dict))
         if not hasattr(integ, "use_solution"):
             family = None
-        elif family is not None and family != _SHARED[0]:
-            _SHARED[:] = [family, scene, {}]
+        elif family is not None:
+            if not shared:
+                _SHARED[:] = [family, scene, {}, set()]
+            _SHARED[3].add(display)
         images, times = [], []
         for s in seeds:
             if family is not None:
@@ -75,4 +78,4 @@ def render_seeds(scene_dict, integrator_dict, spp, seeds):
 
 def forget():
     """Drop the kept scene and solutions."""
-    _SHARED[:] = [None, None, {}]
+    _SHARED[:] = [None, None, {}, set()]
