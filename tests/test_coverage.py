@@ -74,6 +74,12 @@ KNOWN_DEFECTS = {
 #: and their bias is below what they can see; expected failures that may pass (XPASS, never
 #: a PASS): {(row, integrator): the measured defect}
 INTERMITTENT_DEFECTS = {
+    ("sensor:radiancemeter", "ray_bundle:baked"): (
+        "blind at some seeds: the meter's one point reads the baked vertex values, whose noise per solve no "
+        "camera sample averages: 6.9-11.6 % at the smooth display's 24 runs over seeds 2000-2002 (5.6-7.4 % at 40)"),
+    ("sensor:radiancemeter", "qmc_lighttrace:baked"): (
+        "blind at some seeds, as ray_bundle's baked meter: 6.3-11.1 % at 32 runs over seeds 2000-2002 (5.9-7.6 % "
+        "at 48)"),
     ("case:gap_lamps_2cm", "qmc_lighttrace:smooth"): (
         "heavy-tailed, as the 0.5 cm gap's cell (KNOWN_DEFECTS): the gathers at the crowded patches beside the "
         "lamps now and then read the light trapped 2 cm over a lamp; 15 % at seed 2000 (16 runs), mean +0.5 %"),

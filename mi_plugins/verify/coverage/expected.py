@@ -243,16 +243,8 @@ FLAT_RUNS = {"case:negative_emission": 16, "case:textured_area_sphere": 16, "emi
              "bsdf:dielectric": 16}
 
 
-#: the radiance meter's one point read from the baked vertex values: 6.9-11.6 % at the smooth
-#: display's 24 (ray_bundle) and 6.3-11.1 % at its 32 runs (qmc_lighttrace), seeds 2000-2002
-BAKED_METER_RUNS = {"ray_bundle": 40, "qmc_lighttrace": 48}
-
-
 def _flat(smooth, display):
-    runs = dict(smooth.row_runs, **FLAT_RUNS)
-    if display == "baked":
-        runs["sensor:radiancemeter"] = BAKED_METER_RUNS[smooth.params["type"]]
-    return other_display(smooth, display, row_runs=runs)
+    return other_display(smooth, display, row_runs=dict(smooth.row_runs, **FLAT_RUNS))
 
 
 DISPLAYS = [RAY_BUNDLE_SMOOTH, _flat(RAY_BUNDLE_SMOOTH, "patches"), _flat(RAY_BUNDLE_SMOOTH, "baked"),
