@@ -109,12 +109,23 @@ def row_cells():
     return chosen
 
 
+#: the flat and baked display columns (they render the smooth columns' solves): in a row
+#: of ALWAYS, one of them in every test run, taken in turn over those rows
+FURTHER_DISPLAYS = [i for i in INTEGRATORS if i.endswith(":patches") or i.endswith(":baked")]
+
+
+def _further(r, i):
+    """True for a flat or baked cell of an ALWAYS row that runs in the extended tier only."""
+    return i in FURTHER_DISPLAYS and FURTHER_DISPLAYS[ALWAYS.index(r) % len(FURTHER_DISPLAYS)] != i
+
+
 def _cells():
     every_run = row_cells()
     for r in ROWS:
         for i in INTEGRATORS:
             rendered = expected.expected(matrix.rows()[r], i) == outcomes.PASS
-            marks = [pytest.mark.extended] if rendered and r not in ALWAYS and every_run.get(r) != i else []
+            extended = every_run.get(r) != i if r not in ALWAYS else _further(r, i)
+            marks = [pytest.mark.extended] if rendered and extended else []
             if (r, i) in KNOWN_DEFECTS:
                 marks.append(pytest.mark.xfail(strict=True, reason=KNOWN_DEFECTS[(r, i)]))
             if (r, i) in INTERMITTENT_DEFECTS:
