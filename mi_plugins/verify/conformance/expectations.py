@@ -180,10 +180,10 @@ FLAT_RUNS_QMC = dict(DISPLAY_RUNS_QMC, one_sided=24)
 FLAT_MORE_RUNS = {"ray_bundle": {"textured": 28, "winding_outward_flipped": 24, "winding_inward": 24,
                                  "one_sided": 60, "analytic_shapes": 36},
                   "qmc_lighttrace": {"mirror_lit": 96, "one_sided": 36}}
-#: ray_bundle's solves of ``glossy`` are heavy-tailed: of 42 seeds one puts 500 times the
-#: usual irradiance on one floor patch (a bundle line meeting the glossy lobe near its peak;
-#: the smooth display of that solve +14 %, the flat +18 %); its flat cell keeps the smooth
-#: cell's 28 runs (1.8 %; with the 42nd seed's solve 3 %)
+# (not ray_bundle's glossy: its solves there are heavy-tailed, of 42 seeds one puts 500 times
+# the usual irradiance on one floor patch, a bundle line meeting the glossy lobe near its
+# peak, that solve's smooth display +14 %, its flat +18 %; the flat cell keeps the smooth
+# cell's 28 runs: 1.8 %, with the 42nd seed's solve 3 %)
 
 
 def _flat(smooth, gather, runs):

@@ -232,11 +232,8 @@ QMC_LIGHTTRACE_SMOOTH = displayed(QMC_LIGHTTRACE, "smooth", 64,
                                   row_spp=dict({k: v for k, v in QMC_LIGHTTRACE.row_spp.items()
                                                 if k not in GAP_GATHER_SPP}, **{"case:textured_area_sphere": 4}))
 
-#: the flat and baked displays of the same solves (the same seeds, camera samples and
-#: settings: their cells render the smooth cells' solutions,
-#: :mod:`mi_plugins.verify.conformance.renders`)
-#: they show the direct light stored per patch, noisier per solve than the smooth display's
-#: light sample per point: at 8 runs emitters of both signs detected 11.3-13.4 %, the
+#: runs of the flat and baked displays: they show the direct light stored per patch,
+#: noisier per solve than the smooth display's light sample per point: at 8 runs emitters of both signs detected 11.3-13.4 %, the
 #: textured sphere light 10.1-12.6 %, the projector 11.7 % (ray_bundle); the glass's flat and
 #: baked displays resolve their bias with 16 (tests/test_coverage.py)
 FLAT_RUNS = {"case:negative_emission": 16, "case:textured_area_sphere": 16, "emitter:projector": 16,
@@ -247,6 +244,9 @@ def _flat(smooth, display):
     return other_display(smooth, display, row_runs=dict(smooth.row_runs, **FLAT_RUNS))
 
 
+#: the flat and baked displays of the same solves (the same seeds, camera samples and
+#: settings: their cells render the smooth cells' solutions,
+#: :mod:`mi_plugins.verify.conformance.renders`)
 DISPLAYS = [RAY_BUNDLE_SMOOTH, _flat(RAY_BUNDLE_SMOOTH, "patches"), _flat(RAY_BUNDLE_SMOOTH, "baked"),
             QMC_LIGHTTRACE_SMOOTH, _flat(QMC_LIGHTTRACE_SMOOTH, "patches"), _flat(QMC_LIGHTTRACE_SMOOTH, "baked")]
 #: the baked display shows the solution's full radiance: a row of a finite depth is refused
