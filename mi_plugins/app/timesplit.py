@@ -20,15 +20,16 @@ SIZE = {"qmc_lighttrace": ("samples", 50000), "ray_bundle": ("iterations", 16)}
 #: the two solve sizes a SolveRate is measured at
 RATE_SIZES = {"qmc_lighttrace": (200000, 800000), "ray_bundle": (16, 32)}
 #: the solve's share of the seconds: one view (the demo's rows), a walkthrough's frames
-SOLVE_SHARE = {"view": 0.8, "walk": 0.5}
+SOLVE_SHARE = {"view": 0.8, "walk": 0.3}
 #: the least part of its share the display gets when the solve overran
 DISPLAY_FLOOR = 0.5
 #: a pilot render is long enough to time at this share of the display's seconds (or PILOT_MOST spp)
 PILOT_SHARE = 0.05
 PILOT_MOST = 256
-#: the camera-sample counts a display is given: 2^k and 3 x 2^k (a display splits a count
-#: into passes by its largest divisor that fits in memory: a prime count is that many passes)
-SPP_STEPS = sorted({m << k for k in range(15) for m in (1, 3) if m << k <= 1 << 14})
+#: the camera-sample counts a display is given: 2^k, 3, 5 and 7 x 2^k, at most 1.25x apart
+#: (a display splits a count into passes by its largest divisor that fits in memory: a
+#: large prime count would be that many passes)
+SPP_STEPS = sorted({m << k for k in range(15) for m in (1, 3, 5, 7) if m << k <= 1 << 14})
 
 
 class SolveRate:
@@ -76,28 +77,38 @@ class SolveRate:
 def pilot(render, seconds):
     """``render(spp)`` timed for a render of about ``seconds``: at 1 spp (its one-time
     costs, e.g. the smooth field), then at 1, 4, 16, ... spp until one from 16 on takes
-    ``PILOT_SHARE`` of ``seconds``: (fixed seconds per render, seconds per camera sample,
-    seconds spent). The fixed cost is the quicker of the 1 and 4 spp renders less their
-    samples (a busy machine's pause in one of them does not count)."""
+    ``PILOT_SHARE`` of ``seconds``, and that one again: (fixed seconds per render, seconds
+    per camera sample, seconds spent, the first render's one-time seconds). The fixed cost is the quicker of the 1 and 4 spp
+    renders less their samples, the cost per sample the quicker of the last two (a busy
+    machine's pause in one of them does not count)."""
     t0 = time.perf_counter()
     render(1)
+    first = time.perf_counter() - t0
     times, spp = {}, 1
     while True:
         start = time.perf_counter()
         render(spp)
         times[spp] = time.perf_counter() - start
         if spp >= 16 and (times[spp] >= PILOT_SHARE * seconds or spp >= PILOT_MOST):
+            start = time.perf_counter()       # timed again: a pause of the machine in one render does not count
+            render(spp)
+            times[spp] = min(times[spp], time.perf_counter() - start)
             break
         spp *= 4
     small = min(times[1], times[4])
     per_spp = max((times[spp] - small) / (spp - 1), 0.5 * times[spp] / spp)
-    return max(small - per_spp, 0.0), per_spp, time.perf_counter() - t0
+    return max(small - per_spp, 0.0), per_spp, time.perf_counter() - t0, max(first - times[1], 0.0)
+
+
+def least_pilot(fixed, per_spp):
+    """The seconds of the shortest :func:`pilot` (up to 16 spp, that one twice) at
+    ``fixed`` seconds per render and ``per_spp`` per camera sample, one-time costs aside."""
+    return 5 * fixed + (1 + 1 + 4 + 16 + 16) * per_spp
 
 
 def spp_for(seconds, fixed, per_spp, most=1 << 14):
     """Camera samples per pixel of a render that takes at most ``seconds`` (at least 1, at
-    most ``most``), rounded down to a count of ``SPP_STEPS``: the displays compile their
-    kernels for each count (a few counts keep them in Dr.Jit's kernel cache)."""
+    most ``most``), rounded down to a count of ``SPP_STEPS``."""
     fit = min(most, max(1.0, (seconds - fixed) / per_spp))
     return max(n for n in SPP_STEPS if n <= fit)
 
@@ -116,7 +127,7 @@ def solve_and_display(scene, rate, seconds, share=SOLVE_SHARE["view"], seed=0):
 
     def render(spp):
         return mi.render(scene, integrator=integ, spp=int(spp), seed=seed)
-    fixed, per_spp, _ = pilot(render, display_seconds(seconds, time.perf_counter() - t0, share))
+    fixed, per_spp = pilot(render, display_seconds(seconds, time.perf_counter() - t0, share))[:2]
     spp = spp_for(display_seconds(seconds, time.perf_counter() - t0, share), fixed, per_spp)
     image = np.array(render(spp), dtype=np.float64)
     return image, dict(size=size, spp=spp, solve_seconds=solved, seconds=time.perf_counter() - t0,

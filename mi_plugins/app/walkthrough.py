@@ -6,7 +6,7 @@ budget. A solution integrator (``qmc_lighttrace`` or ``ray_bundle``, ``display='
 solves once, on a fresh scene object, for ``timesplit.SOLVE_SHARE['walk']`` of that
 budget and shows every frame with the camera samples that fit in the rest. Every frame's
 error is measured against a long ``path`` reference of that frame (cached on disk:
-:mod:`mi_plugins.app.cached_references`), and further runs at a quarter, an eighth or half of
+:mod:`mi_plugins.app.cached_references`), and further runs at a quarter, a fifth or half of
 ``path``'s time find the time a solution needs to reach ``path``'s error on every frame.
 Used by ``mi-plugins demo`` (``mi_plugins.app.demo``)::
 
@@ -114,12 +114,13 @@ def render_path(scene, transforms, spp, seed=1):
 
 def render_solution(scene, rate, transforms, seconds, share=None, seed=2, overhead=0.0):
     """ONE solve of ``scene``, then every frame at the camera samples that fit in the rest
-    (pilot renders of the first frame). ``overhead``: the seconds the frames cost whatever
+    (pilot renders of frames along the walk). ``overhead``: the seconds the frames cost whatever
     their camera samples (a render's fixed cost per frame, the pilots), when known; the
     solve, sized by ``rate`` (:class:`~mi_plugins.app.timesplit.SolveRate`), gets ``share``
     of the rest of ``seconds``, and the frames' camera samples at least
     ``timesplit.DISPLAY_FLOOR`` of theirs. Returns (images, dict of size, spp,
-    solve_seconds, seconds, solves, overhead: the overhead measured)."""
+    solve_seconds, seconds, solves, overhead: the overhead measured: the display's one-time
+    and per-frame costs and the shortest pilot)."""
     share = timesplit.SOLVE_SHARE["walk"] if share is None else share
     from mi_plugins import solve
     t0 = time.perf_counter()
@@ -129,16 +130,18 @@ def render_solution(scene, rate, transforms, seconds, share=None, seed=2, overhe
     solve(scene, integ, seed=seed)
     solved = time.perf_counter() - t0
     rate.observe(size, solved)
-    fixed, per_spp, piloted = timesplit.pilot(
-        lambda spp: views.render_camera_path(scene, integ, transforms[:1], spp=spp, seed=seed),
-        max(seconds - solved, (1.0 - share) * variable))
+    frames = iter(transforms[k % len(transforms)] for k in range(0, 1 << 30, 7))
+
+    def render(spp):                      # a pilot render: the next of some frames along the walk
+        return views.render_camera_path(scene, integ, [next(frames)], spp=spp, seed=seed)
+    fixed, per_spp, _, once = timesplit.pilot(render, max(seconds - solved, (1.0 - share) * variable))
     floor = timesplit.DISPLAY_FLOOR * (1.0 - share) * variable + fixed * len(transforms)
     left = max(seconds - (time.perf_counter() - t0), floor)
     spp = timesplit.spp_for(left / len(transforms), fixed, per_spp)
     images = views.render_camera_path(scene, integ, transforms, spp=spp, seed=seed)
     return [np.array(image) for image in images], dict(
         size=size, spp=spp, solve_seconds=solved, seconds=time.perf_counter() - t0, solves=integ.solve_count,
-        overhead=piloted + fixed * len(transforms))
+        overhead=once + fixed * len(transforms) + timesplit.least_pilot(fixed, per_spp))
 
 
 def _solution_run(d, rate, walk, fraction, seed, overhead=0.0):
@@ -155,7 +158,7 @@ def _solution_run(d, rate, walk, fraction, seed, overhead=0.0):
 def compare(resolution, rates, frames=FRAMES, path_spp=PATH_SPP, cache=None, out=print):
     """The walk at ``resolution`` px: ``path`` at ``path_spp`` a frame, then each integrator
     of ``rates`` ({name: SolveRate}) from one solve at equal time, then at shorter
-    budgets (a quarter of path's time; an eighth where a quarter reaches path's error on
+    budgets (a quarter of path's time; a fifth where a quarter reaches path's error on
     every frame, half where it does not): a :class:`Walk`."""
     d = scene_dict(resolution)
     transforms = cornell_walk(frames)
@@ -169,7 +172,7 @@ def compare(resolution, rates, frames=FRAMES, path_spp=PATH_SPP, cache=None, out
         overhead = walk.runs[name].info["overhead"]          # the frames' fixed costs, known now
         walk.reach[name] = [_solution_run(d, rate, walk, 0.25, seed=10 * k + 3, overhead=overhead)]
         reached = np.all(walk.reach[name][0].worst_ratio(walk.runs["path"]) <= 1.0)
-        walk.reach[name].append(_solution_run(d, rate, walk, 0.125 if reached else 0.5, seed=10 * k + 4,
+        walk.reach[name].append(_solution_run(d, rate, walk, 0.2 if reached else 0.5, seed=10 * k + 4,
                                               overhead=overhead))
     report(walk, out)
     return walk

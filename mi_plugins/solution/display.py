@@ -148,7 +148,8 @@ def light_samples(cam, seed, k):
     a pixel over all passes stratify the square, whichever sampler the sensor has (its
     own numbers draw the film position). The penumbrae and the area lights' noise of the
     direct light fall faster than with independent numbers."""
-    index = dr.opaque(mi.UInt32, int(k) * cam.per_pixel) + dr.arange(mi.UInt32, cam.count) % cam.per_pixel
+    per_pixel = dr.opaque(mi.UInt32, cam.per_pixel)     # opaque: one kernel for every camera sample count
+    index = dr.opaque(mi.UInt32, int(k) * cam.per_pixel) + dr.arange(mi.UInt32, cam.count) % per_pixel
     key = sequences.hash32(dr.opaque(mi.UInt32, seed), cam.grid_pixel)
     return mi.Point2f(*(sequences.sample("sobol", index, d, scramble=True, seed=key) for d in (0, 1)))
 
