@@ -123,3 +123,34 @@ def test_an_overrunning_solve_still_leaves_the_display_its_floor_and_corrects_th
 def test_the_rate_refuses_an_integrator_without_a_solution():
     with pytest.raises(ValueError, match="integrator 'path' has no view-independent solution"):
         timesplit.SolveRate({"type": "path"}, 0.0, 1.0)
+
+
+def walk_faults(info, cost, seconds, overhead, frames):
+    """What a walk's solution run of ``seconds`` did wrong on the fake machine (empty: nothing)."""
+    faults = []
+    if info["solve_seconds"] != pytest.approx(timesplit.SOLVE_SHARE["walk"] * (seconds - overhead), rel=1e-3):
+        faults.append("the solve did not take its share of the seconds less the overhead: %r" % info)
+    if info["overhead"] != pytest.approx(cost["first"] + cost["fixed"] * (frames + 5) + 38 * cost["spp"]):
+        faults.append("the overhead is not the display's one-time and per-frame costs and the least pilot: %r" % info)
+    nxt = timesplit.SPP_STEPS[timesplit.SPP_STEPS.index(info["spp"]) + 1]
+    if info["seconds"] > seconds or info["seconds"] + frames * cost["spp"] * (nxt - info["spp"]) <= seconds:
+        faults.append("the frames did not fill the seconds: %r" % info)
+    return faults
+
+
+@pytest.mark.parametrize("fraction, broken", [(1.0, None), (0.25, None), (0.25, "no pilot")])
+def test_a_walk_solves_for_its_share_and_fills_the_rest_with_camera_samples(fake_machine, monkeypatch, fraction,
+                                                                             broken):
+    """One solve for its share of a walk's seconds (at a quarter: of the seconds less the
+    overhead a first run measured), the frames' camera samples filling the rest; the test
+    of the test: frames left with 1 spp fail."""
+    from mi_plugins.app import walkthrough
+    cost, _ = fake_machine
+    if broken == "no pilot":
+        monkeypatch.setattr(timesplit, "spp_for", lambda *a, **k: 1)
+    rate = timesplit.SolveRate({"type": "qmc_lighttrace", "display": "smooth"}, 0.0, cost["solve"])
+    frames, seconds = 30, 8.0 * fraction
+    overhead = 0.0 if fraction == 1.0 else cost["first"] + cost["fixed"] * (frames + 5) + 38 * cost["spp"]
+    _, info = walkthrough.render_solution(mi.load_dict(walkthrough.scene_dict(16)), rate,
+                                          walkthrough.cornell_walk(frames), seconds, overhead=overhead)
+    assert bool(walk_faults(info, cost, seconds, overhead, frames)) == (broken is not None), info
