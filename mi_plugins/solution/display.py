@@ -34,6 +34,7 @@ from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
 from mi_plugins.solution.gather import CameraPaths, FlatTables
 from mi_plugins.solution.surfaces import patch_side
+from mi_plugins.solution.steep import steep_patches
 from mi_plugins.solution.surfaces import Surfaces, reflectance_toward, side_of
 from mi_plugins.light.direct import direct_light, needs_bsdf_sample
 
@@ -43,6 +44,9 @@ DISPLAYS = ("gather", "smooth", "patches", "baked")
 DEFAULT_EMITTER_SAMPLES = 8
 #: ``crowd_reach``: patch sizes within which a facing surface makes the smooth display gather
 DEFAULT_CROWD_REACH = 1.0
+#: ``steep``: a corner of the smooth field this far from its patch's own value (a share of
+#: it) makes the smooth display gather there; off by default (mi_plugins.solution.steep)
+DEFAULT_STEEP = 0.0
 MAX_EMITTER_SAMPLES = 64
 #: camera lanes of one display pass at the most (a render of more is split into passes)
 MAX_PASS_LANES = 1 << 22
@@ -94,13 +98,16 @@ class SmoothTables:
 
 class View:
     """A solution read by one render: ``mode`` (one of DISPLAYS but 'gather'), the
-    scene's patch ``table`` (the solution's patch numbering); ``crowd_reach``: the smooth
-    display gathers at the crowded patches (``mi_plugins.patches.crowding``; the other
-    modes show what the solution stores)."""
+    scene's patch ``table`` (the solution's patch numbering); ``crowd_reach``, ``steep``:
+    the smooth display gathers at the crowded patches (``mi_plugins.patches.crowding``) and
+    at the steep ones (``mi_plugins.solution.steep``; the other modes show what the
+    solution stores)."""
 
-    def __init__(self, solution, table, mode, crowd_reach=0.0):
+    def __init__(self, solution, table, mode, crowd_reach=0.0, steep=0.0):
         self.mode, self.table, self.solution = mode, table, solution
-        self.surfaces = Surfaces(table.scene, table, crowd_reach if mode == "smooth" else 0.0)
+        smooth = mode == "smooth"
+        self.surfaces = Surfaces(table.scene, table, crowd_reach if smooth else 0.0,
+                                 steep_patches(solution, table, steep) if smooth and steep > 0 else None)
         self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_unread
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)

@@ -46,6 +46,11 @@ DISPLAY_ROWS = (
         "reading the stored light at the patches where other surfaces stand within this many of the patch's "
         "size (corners, junctions, shelves, contact lines: ``mi_plugins.patches.crowding``), where the light "
         "changes within a patch; 0: read at every patch"),
+    Row("steep", "float", "0",
+        ">= 0: the smooth display gathers instead of reading the stored light at the patches where its "
+        "field departs at a corner from the patch's own value by more than this share of it (a lit strip "
+        "beside a shadow; 0.5 measured: ``mi_plugins.solution.steep``, which also says why it is off by "
+        "default); 0: never"),
     Row("preview_every", "int", "0",
         ">= 0: with ``integrator.preview_callback = f(image, done, total)`` set, every N steps of a solve "
         "the image of the solution so far (one sample per pixel); 0: none"),
@@ -63,6 +68,7 @@ class SolutionIntegrator(CoreIntegrator):
                                      hi=display.MAX_EMITTER_SAMPLES)
         self.crowd_reach = p.float("crowd_reach", display.DEFAULT_CROWD_REACH, lo=0,
                                    note="0: read the stored light at every patch")
+        self.steep = p.float("steep", display.DEFAULT_STEEP, lo=0, note="0: never")
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
@@ -142,7 +148,7 @@ class SolutionIntegrator(CoreIntegrator):
     def render_display(self, frame, solution, table, steps=None):
         """The frame's image from ``solution`` in this integrator's display mode."""
         solution.complete(frame.scene, table)
-        view = display.View(solution, table, self.display, self.crowd_reach)
+        view = display.View(solution, table, self.display, self.crowd_reach, self.steep)
         display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
                        getattr(self, "gather_samples", 1), steps, self.emitter_samples)
 

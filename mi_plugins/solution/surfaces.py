@@ -44,11 +44,14 @@ def purely_diffuse(bsdf):
 class Surfaces:
     """Per-shape classification of a scene, for kernels: :meth:`diffuse` per hit; with the
     scene's patch ``table``, :meth:`readable` too; ``crowd_reach`` (the smooth display's):
-    the crowded patches are not read either (:mod:`mi_plugins.patches.crowding`)."""
+    the crowded patches are not read either (:mod:`mi_plugins.patches.crowding`), nor those
+    of ``steep`` (numpy bool per front patch: :mod:`mi_plugins.solution.steep`)."""
 
-    def __init__(self, scene, table=None, crowd_reach=0.0):
+    def __init__(self, scene, table=None, crowd_reach=0.0, steep=None):
         unread = mouth_patches(table) | crowded_patches(table, crowd_reach) if table is not None \
             else np.zeros(0, bool)
+        if steep is not None:
+            unread = unread | steep
         self.table, self.any_unread = table, bool(unread.any())
         self._unread = jit(mi.UInt32, np.concatenate([unread, [False, False]]))   # (never width 1)
         shapes = list(scene.shapes())
@@ -72,7 +75,7 @@ class Surfaces:
     def readable(self, si, active=True):
         """Per lane: :meth:`diffuse`, and not on a patch at the mouth of a narrow gap
         (:mod:`mi_plugins.patches.gaps`: its one value mixes the light trapped in the gap with the
-        open side's) or, with ``crowd_reach``, on a crowded patch; a camera path continues
+        open side's) or, with ``crowd_reach``, on a crowded patch, or on a steep one; a camera path continues
         at the other diffuse hits, as on a glossy surface, instead of reading the stored
         light there."""
         diffuse = self.diffuse(si, active)
