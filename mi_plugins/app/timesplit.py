@@ -78,9 +78,9 @@ def pilot(render, seconds):
     """``render(spp)`` timed for a render of about ``seconds``: at 1 spp (its one-time
     costs, e.g. the smooth field), then at 1, 4, 16, ... spp until one from 16 on takes
     ``PILOT_SHARE`` of ``seconds``, and that one again: (fixed seconds per render, seconds
-    per camera sample, seconds spent, the first render's one-time seconds). The fixed cost is the quicker of the 1 and 4 spp
-    renders less their samples, the cost per sample the quicker of the last two (a busy
-    machine's pause in one of them does not count)."""
+    per camera sample, seconds spent, the first render's one-time seconds). The fixed cost
+    is the quicker of the 1 and 4 spp renders less their samples, the cost per sample from
+    the quicker of the last two (a busy machine's pause in one of them does not count)."""
     t0 = time.perf_counter()
     render(1)
     first = time.perf_counter() - t0
