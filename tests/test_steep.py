@@ -34,3 +34,15 @@ def test_steep_patches_gather_beside_the_lit_strip():
     bad, bad_se = _band(dict(settings, steep=0.0), 16, 8, 55)
     assert bad > 2.0 * ref and bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
 
+
+
+@pytest.mark.parametrize("integrator", [
+    pytest.param({"type": "ray_bundle", "iterations": 24}, id="ray_bundle"),
+    pytest.param({"type": "qmc_lighttrace", "samples": 100000}, id="qmc_lighttrace")])
+@pytest.mark.xfail(strict=True, reason="known defect: the default smooth display (steep off) carries the lit "
+                   "strip's light into the shadowed floor beside it: +588 % (ray_bundle, z +52), +547 % "
+                   "(qmc_lighttrace, z +37)")
+def test_the_default_smooth_display_beside_the_lit_strip(integrator):
+    ref, ref_se = _band({"type": "path"}, 2048, 8, 50)
+    mean, se = _band(dict(integrator, display="smooth"), 16, 8, 55)
+    budget.close(mean, ref, np.hypot(se, ref_se), what="default smooth display beside the strip / path")
