@@ -24,7 +24,7 @@ def _band(integrator, spp, runs, seed):
 
 def test_steep_patches_gather_beside_the_lit_strip():
     """``ray_bundle``'s smooth display with ``steep=0.5`` matches ``path`` on the shadowed
-    floor beside the lit strip (+1.1 %, z +0.1 measured); test of the test: without it
+    floor beside the lit strip (+2.0 %, z +0.2 measured); test of the test: without it
     (``steep=0``, the default) the field carries the strip's light into the shadow, +588 %
     (z +52)."""
     ref, ref_se = _band({"type": "path"}, 2048, 8, 50)
@@ -46,3 +46,39 @@ def test_the_default_smooth_display_beside_the_lit_strip(integrator):
     ref, ref_se = _band({"type": "path"}, 2048, 8, 50)
     mean, se = _band(dict(integrator, display="smooth"), 16, 8, 55)
     budget.close(mean, ref, np.hypot(se, ref_se), what="default smooth display beside the strip / path")
+
+
+def _image_mean(scene, integrator, spp, runs, seed):
+    images = runner.render_runs(scene, integrator, spp, [budget.seed(seed) * 1000 + r for r in range(runs)])[0]
+    means = images[..., :3].mean(axis=(1, 2, 3))
+    return means.mean(), means.std(ddof=1) / np.sqrt(runs)
+
+
+def test_steep_patches_are_decided_on_a_second_solve(monkeypatch):
+    """Which patches gather does not follow the displayed values' noise: ``qmc_lighttrace``
+    at 20 000 paths with ``steep=0.5`` keeps the image mean of ``cornell_mesh`` (-0.11 %,
+    z -2.5 in the conformance suite's runs; -0.03 .. -0.08 %, |z| <= 1.4 here over three
+    seed sets); the second solve runs once per solution and leaves the integrator's state
+    as the first solve left it. Test of the test: deciding on the displayed solution itself
+    raises the mean (+0.43 .. +0.59 %, z 7.1-12 over the same seed sets)."""
+    from mi_plugins.solution import integrator as solution_integrator
+    from mi_plugins.verify.conformance import scene_library
+    scene = scene_library.cornell_mesh(16)
+    settings = {"type": "qmc_lighttrace", "samples": 20000, "display": "smooth", "steep": 0.5}
+    ref, ref_se = _image_mean(scene, {"type": "path"}, 1024, 32, 60)
+    mean, se = _image_mean(scene, settings, 64, 48, 61)
+    budget.close(mean, ref, np.hypot(se, ref_se), what="qmc_lighttrace smooth display with steep / path")
+
+    integ, loaded = mi.load_dict(settings), mi.load_dict(scene)
+    mi.render(loaded, integrator=integ, spp=1, seed=3)
+    paths, solves = integ.paths_used, integ.solve_count
+    decided = integ.last_solution._arrays["steep patches 0.5"]
+    mi.render(loaded, integrator=integ, spp=1, seed=3)
+    assert (integ.paths_used, integ.solve_count) == (paths, solves) == (20000, 1)
+    assert integ.last_solution._arrays["steep patches 0.5"] is decided and decided.any()
+
+    def on_itself(self, frame, solution, table):
+        return solution_integrator.steep.steep_patches(solution.complete(frame.scene, table), table, self.steep)
+    monkeypatch.setattr(solution_integrator.SolutionIntegrator, "steep_patches", on_itself)
+    bad, bad_se = _image_mean(scene, settings, 64, 48, 61)
+    assert bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)

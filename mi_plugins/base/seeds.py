@@ -28,6 +28,7 @@ STREAMS = {
     "display": 13,      # camera paths of the display modes of a solution
     "refine": 14,       # ray_bundle's measurement of the direct light in the children of patches
     "gather pass": 15,  # render seeds of qmc_lighttrace's camera passes after the first
+    "steep": 16,        # the second solve that decides a smooth display's steep patches
 }
 
 

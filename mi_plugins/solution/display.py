@@ -34,7 +34,6 @@ from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
 from mi_plugins.solution.gather import CameraPaths, FlatTables
 from mi_plugins.solution.surfaces import patch_side
-from mi_plugins.solution.steep import steep_patches
 from mi_plugins.solution.surfaces import Surfaces, reflectance_toward, side_of
 from mi_plugins.light.direct import direct_light, needs_bsdf_sample
 
@@ -100,14 +99,13 @@ class View:
     """A solution read by one render: ``mode`` (one of DISPLAYS but 'gather'), the
     scene's patch ``table`` (the solution's patch numbering); ``crowd_reach``, ``steep``:
     the smooth display gathers at the crowded patches (``mi_plugins.patches.crowding``) and
-    at the steep ones (``mi_plugins.solution.steep``; the other modes show what the
-    solution stores)."""
+    at the patches of ``steep`` (numpy bool per front patch, or None:
+    ``mi_plugins.solution.steep``; the other modes show what the solution stores)."""
 
-    def __init__(self, solution, table, mode, crowd_reach=0.0, steep=0.0):
+    def __init__(self, solution, table, mode, crowd_reach=0.0, steep=None):
         self.mode, self.table, self.solution = mode, table, solution
         smooth = mode == "smooth"
-        self.surfaces = Surfaces(table.scene, table, crowd_reach if smooth else 0.0,
-                                 steep_patches(solution, table, steep) if smooth and steep > 0 else None)
+        self.surfaces = Surfaces(table.scene, table, crowd_reach if smooth else 0.0, steep if smooth else None)
         self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_unread
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)

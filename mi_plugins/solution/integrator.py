@@ -22,8 +22,8 @@ import time
 import mitsuba as mi
 import numpy as np
 
-from mi_plugins.base import collection, fingerprint
-from mi_plugins.solution import display
+from mi_plugins.base import collection, fingerprint, seeds
+from mi_plugins.solution import display, steep
 from mi_plugins.base.param_docs import Row
 from mi_plugins.render.core import CoreIntegrator
 from mi_plugins.render.frame import Frame
@@ -49,8 +49,8 @@ DISPLAY_ROWS = (
     Row("steep", "float", "0",
         ">= 0: the smooth display gathers instead of reading the stored light at the patches where its "
         "field departs at a corner from the patch's own value by more than this share of it (a lit strip "
-        "beside a shadow; 0.5 measured: ``mi_plugins.solution.steep``, which also says why it is off by "
-        "default); 0: never"),
+        "beside a shadow; 0.5 measured), decided on a second solve with another seed, so a render solves "
+        "twice (``mi_plugins.solution.steep``); not with ``refine``; 0: never"),
     Row("preview_every", "int", "0",
         ">= 0: with ``integrator.preview_callback = f(image, done, total)`` set, every N steps of a solve "
         "the image of the solution so far (one sample per pixel); 0: none"),
@@ -69,6 +69,9 @@ class SolutionIntegrator(CoreIntegrator):
         self.crowd_reach = p.float("crowd_reach", display.DEFAULT_CROWD_REACH, lo=0,
                                    note="0: read the stored light at every patch")
         self.steep = p.float("steep", display.DEFAULT_STEEP, lo=0, note="0: never")
+        if self.steep > 0 and getattr(self, "refine", False):
+            raise p.conflict(("steep", "refine"), "steep > 0 with refine=false (the second solve that decides "
+                             "the steep patches would split other patches), or steep=0")
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
@@ -145,10 +148,28 @@ class SolutionIntegrator(CoreIntegrator):
         self._given = solution
 
     # ------------------------------------------------------------------ display
+    def steep_patches(self, frame, solution, table):
+        """The steep patches of ``solution`` (:mod:`mi_plugins.solution.steep`), decided on
+        a second solve of the same settings with another seed, so that which patches gather
+        does not follow the displayed values' noise; kept with the solution. The second
+        solve leaves the integrator's state as the first left it."""
+        def decide():
+            state = dict(self.__dict__)
+            try:
+                other = self.compute_solution(frame.scene, table, seeds.stream(solution.seed, "steep"), None,
+                                              sensor=frame.sensor)
+            finally:
+                self.__dict__.clear()
+                self.__dict__.update(state)
+            other.field = solution.field
+            return steep.steep_patches(other, table, self.steep)
+        return solution.array("steep patches %r" % self.steep, decide)
+
     def render_display(self, frame, solution, table, steps=None):
         """The frame's image from ``solution`` in this integrator's display mode."""
         solution.complete(frame.scene, table)
-        view = display.View(solution, table, self.display, self.crowd_reach, self.steep)
+        steep = self.steep_patches(frame, solution, table) if self.display == "smooth" and self.steep > 0 else None
+        view = display.View(solution, table, self.display, self.crowd_reach, steep)
         display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
                        getattr(self, "gather_samples", 1), steps, self.emitter_samples)
 
