@@ -10,7 +10,7 @@ import numpy as np
 from mi_plugins.patches import refinement
 from mi_plugins.patches.refinement import CHILDREN
 
-from mi_plugins.solution.patch_light import side_values
+from mi_plugins.solution.patch_light import LUMINANCE, side_values
 from mi_plugins.integrators.qmc_lighttrace.particles import trace_range
 from mi_plugins.integrators.qmc_lighttrace.store import check_memory
 
@@ -21,8 +21,6 @@ MIN_GROUP_PATHS = 256
 #: with ``refine``: the ranges after which patches may split (the later ones estimate the
 #: refined patches)
 REFINE_RANGES = 4
-#: Mitsuba's luminance weights of linear RGB (mi.luminance)
-LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
 
 def particle_phase(integ, scene, table, seed, report=False, rendering=False, given=None, preview=None):

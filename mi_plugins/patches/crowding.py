@@ -50,8 +50,13 @@ def _crowded(table, reach):
     sizes = mi.Float(patch_sizes(table).astype(np.float32))
     share = np.concatenate([_near_share(table, sizes, reach, start, min(CHUNK, count - start))
                             for start in range(0, count, CHUNK)])        # (blocks of patches: bounded memory)
+    return (share > SHARE) & ~emitting_patches(table)
+
+
+def emitting_patches(table):
+    """numpy bool (front_count,): the front patches of ``table`` on emitting shapes."""
     emitting = np.array([shape.emitter() is not None for shape in table.shapes], dtype=bool)
-    return (share > SHARE) & ~emitting[table.shape_index_np[:count]]
+    return emitting[table.shape_index_np[:table.front_count]]
 
 
 def _near_share(table, sizes, reach, start, count):

@@ -22,6 +22,8 @@ from mi_plugins.patches.refinement import CHILDREN, child_index
 from mi_plugins.light.direct import direct_light
 from mi_plugins.solution.surfaces import Surfaces, reflectance_toward
 
+#: Mitsuba's luminance weights of linear RGB (mi.luminance), for numpy patch values
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 #: random points per patch side of the direct irradiance
 DIRECT_SAMPLES = 8
 #: lanes of one kernel at the most (patch sides x samples are done in chunks)

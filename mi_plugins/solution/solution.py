@@ -97,7 +97,8 @@ class Solution:
         return self._vertex[name]
 
     def array(self, name, make):
-        """A Dr.Jit array of this solution for kernels (``make()``, made once per name)."""
+        """An array made from this solution (``make()``, once per name): Dr.Jit arrays for
+        kernels, or numpy ones a display derives from it (its steep patches)."""
         if name not in self._arrays:
             self._arrays[name] = make()
         return self._arrays[name]

@@ -35,8 +35,9 @@ render then solves twice: that is why it is off by default.
 """
 import numpy as np
 
-#: Mitsuba's luminance weights of linear RGB (mi.luminance)
-LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+from mi_plugins.patches.crowding import emitting_patches
+from mi_plugins.solution.patch_light import LUMINANCE
+
 #: departures below this share of the mean side value never make a side steep
 FLOOR = 1e-3
 
@@ -57,6 +58,4 @@ def steep_patches(solution, table, ratio):
     np.maximum.at(departure, corner_patch, np.abs(vertex[corner_vertex] - flat[corner_patch]))
     lit = flat > 0
     floor = FLOOR * (flat[lit].mean() if lit.any() else 0.0)
-    emitting = np.array([shape.emitter() is not None for shape in table.shapes], dtype=bool)
-    return np.any(departure > ratio * flat + floor, axis=1) & (floor > 0) \
-        & ~emitting[table.shape_index_np[:field.count]]
+    return np.any(departure > ratio * flat + floor, axis=1) & (floor > 0) & ~emitting_patches(table)

@@ -233,9 +233,10 @@ QMC_LIGHTTRACE_SMOOTH = displayed(QMC_LIGHTTRACE, "smooth", 64,
                                                 if k not in GAP_GATHER_SPP}, **{"case:textured_area_sphere": 4}))
 
 #: runs of the flat and baked displays: they show the direct light stored per patch,
-#: noisier per solve than the smooth display's light sample per point: at 8 runs emitters of both signs detected 11.3-13.4 %, the
-#: textured sphere light 10.1-12.6 %, the projector 11.7 % (ray_bundle); the glass's flat and
-#: baked displays resolve their bias with 16 (tests/test_coverage.py)
+#: noisier per solve than the smooth display's light sample per point: at 8 runs emitters
+#: of both signs detected 11.3-13.4 %, the textured sphere light 10.1-12.6 %, the projector
+#: 11.7 % (ray_bundle); the glass's flat and baked displays resolve their bias with 16
+#: (tests/test_coverage.py)
 FLAT_RUNS = {"case:negative_emission": 16, "case:textured_area_sphere": 16, "emitter:projector": 16,
              "bsdf:dielectric": 16}
 
