@@ -184,6 +184,26 @@ def test_per_triangle_radiance_of_the_cube():
     assert np.all(radiance[:, 1] == 0.0)
 
 
+def test_the_display_modes_trace_paths_by_the_patch_count():
+    """By default the gather traces 100 000 particle paths and the display modes 64 per
+    patch, at least 100 000 (their image reads the patches' own stored light, whose noise
+    is the solve's); a given ``samples`` is kept in every mode."""
+    from mi_plugins.integrators.qmc_lighttrace.integrator import DEFAULT_SAMPLES, PATHS_PER_PATCH
+    scene = mi.load_dict(mi.cornell_box())
+    fine, coarse = {"type": "qmc_lighttrace", "patch_size": 0.05}, {"type": "qmc_lighttrace", "patch_size": 0.5}
+    patches = mi.load_dict(fine).patch_table(scene).front_count
+    assert PATHS_PER_PATCH * patches > 2 * DEFAULT_SAMPLES
+    assert PATHS_PER_PATCH * mi.load_dict(coarse).patch_table(scene).front_count < DEFAULT_SAMPLES
+    for params, expected in ((dict(coarse, display="smooth"), DEFAULT_SAMPLES),
+                             (dict(fine, display="smooth"), PATHS_PER_PATCH * patches),
+                             (dict(fine, display="patches"), PATHS_PER_PATCH * patches),
+                             (fine, DEFAULT_SAMPLES),
+                             (dict(fine, display="smooth", samples=5000), 5000)):
+        integrator = mi.load_dict(params)
+        mi.render(scene, integrator=integrator, spp=1, seed=budget.seed(0))
+        assert integrator.paths_used == expected, (params, integrator.paths_used, expected)
+
+
 def test_subdivided_cube_stays_exact():
     """The default splits the cube's 12 triangles (edge 2.8) into 12 x 196 sub-triangles:
     each still estimates the exact 1/2, with the noise of 196 x fewer particles per patch
@@ -1004,7 +1024,8 @@ def test_same_seed_same_image():
 
 @pytest.mark.parametrize("params, message", [
     ({"epsilon": 0.0}, "epsilon=0.0 is invalid; valid range: a finite number > 0"),
-    ({"samples": 0}, r"samples=0 is invalid; valid range: an integer in 1 \.\. 4294967296 \(the particle index"),
+    ({"samples": 0}, r"samples=0 is invalid; valid range: an integer in 1 \.\. 4294967296 \(optional: 100000, in the "
+     r"display modes at least 64 per patch; the particle index is 32-bit"),
     ({"samples": 2 ** 40}, r"samples=1099511627776 is invalid; valid range: an integer in 1 \.\. 4294967296"),
     ({"max_samples": 2 ** 33}, r"max_samples=8589934592 is invalid; valid range: an integer in 1 \.\. 4294967296"),
     ({"batch": 2 ** 33}, r"batch=8589934592 is invalid; valid range: an integer in 1 \.\. 4294967296"),

@@ -34,6 +34,13 @@ from mi_plugins.base.params import Params
 SEQUENCES = ("sobol", "halton", "faure", "lcg", "independent")
 #: the particle index is 32-bit: at most this many paths (samples, batch, max_samples)
 MAX_PATHS = 1 << 32
+#: particle paths by default: the gather's (its noise is the camera side's), and at least
+#: this in the display modes
+DEFAULT_SAMPLES = 100000
+#: the display modes' default paths per patch: their image reads the stored light of the
+#: patches themselves, whose noise is the solve's (on a furnished room of 26 500 patches,
+#: 100 000 paths left the smooth display at 2.2x the error of 1.6 M in the same seconds)
+PATHS_PER_PATCH = 64
 #: at most this many gather samples per eye ray
 MAX_GATHER = 1024
 
@@ -98,7 +105,8 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.sequence = p.choice("sequence", "sobol", SEQUENCES)
         self.scramble = p.bool("scramble", True)
         self.sequence_depth = p.int("sequence_depth", 3, lo=0)
-        self.samples = p.int("samples", 100000, lo=1, hi=MAX_PATHS, note="the particle index is 32-bit")
+        self.samples = p.int("samples", None, lo=1, hi=MAX_PATHS, note="optional: %d, in the display modes at "
+                             "least %d per patch; the particle index is 32-bit" % (DEFAULT_SAMPLES, PATHS_PER_PATCH))
         self.epsilon = p.float("epsilon", None, lo=0, lo_open=True, note="optional: adaptive termination")
         self.batch = p.int("batch", 1000, lo=1, hi=MAX_PATHS)
         self.patience = p.int("patience", 2, lo=1)
@@ -161,6 +169,16 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                                                 preview=partial if preview is not None else None)
         return Solution(tables, refined.areas_np, self._meta(scene, refined, seed, self.paths_used), error=error)
 
+    def paths_for(self, table):
+        """The particle paths of a solve on ``table``: ``samples``, or by default
+        DEFAULT_SAMPLES with ``display`` 'gather' and at least PATHS_PER_PATCH per patch
+        of ``table`` in the display modes."""
+        if self.samples is not None:
+            return self.samples
+        if self.display == "gather":
+            return DEFAULT_SAMPLES
+        return min(max(DEFAULT_SAMPLES, PATHS_PER_PATCH * int(table.front_count)), MAX_PATHS)
+
     def _meta(self, scene, table, seed, paths):
         return solution_meta(self, scene, table, seed, self.patch_size_for(scene), paths=int(paths),
                              sequence=self.sequence, refinements=list(self.refinements))
@@ -185,7 +203,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
                              "split; valid for distributed rendering: no epsilon, a fixed samples count"
                              % self.epsilon)
-        return ParticleRanges(paths=self.samples)
+        return ParticleRanges(paths=self.paths_for(self.patch_table(scene)))
 
     def trace_particles(self, scene, start, count, seed):
         """The deposits (layers, K, 2, 3) of the paths start .. start + count - 1."""
@@ -230,5 +248,5 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         run_steps(frame, None, step, stage=range(passes))
 
     def to_string(self):
-        return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%d]" % (
-            self.sequence, self.max_depth, self.sequence_depth, self.samples)
+        return "QMCLightTraceIntegrator[sequence=%s, max_depth=%d, sequence_depth=%d, samples=%s]" % (
+            self.sequence, self.max_depth, self.sequence_depth, "auto" if self.samples is None else self.samples)

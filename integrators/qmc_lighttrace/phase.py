@@ -71,7 +71,7 @@ def area_divisor(table):
 def _ranges(integ, scene, table, seed, preview):
     """``samples`` paths in GROUPS consecutive ranges: (deposits, paths, standard error of
     the last read table per patch side, or None with too few paths per range)."""
-    n = int(integ.samples)
+    n = int(integ.paths_for(table))
     groups = GROUPS if n >= GROUPS * MIN_GROUP_PATHS else 1
     bounds = [n * g // groups for g in range(groups + 1)]
     areas = area_divisor(table)[None, :, None, None]
@@ -95,7 +95,7 @@ def _refining(integ, scene, table, seed, preview):
     refined table). A patch's estimate comes from the paths traced since its parent was
     made (its share of the parent's children then, and its own deposits since): unbiased,
     every range being an unbiased estimate of every patch."""
-    n = int(integ.samples)
+    n = int(integ.paths_for(table))
     groups = GROUPS if n >= GROUPS * MIN_GROUP_PATHS else 1
     bounds = [n * g // groups for g in range(groups + 1)]
     layers, k = integ.layers.count, table.front_count

@@ -29,6 +29,7 @@ STREAMS = {
     "refine": 14,       # ray_bundle's measurement of the direct light in the children of patches
     "gather pass": 15,  # render seeds of qmc_lighttrace's camera passes after the first
     "steep": 16,        # the second solve that decides a smooth display's steep patches
+    "residual": 17,     # the display's camera samples that also gather (its residual check)
 }
 
 

@@ -47,6 +47,8 @@ DEFAULT_CROWD_REACH = 1.0
 #: it) makes the smooth display gather there; off by default (mi_plugins.solution.steep)
 DEFAULT_STEEP = 0.0
 MAX_EMITTER_SAMPLES = 64
+#: ``residual``: the share of the camera samples at read points that also gather (0: none)
+DEFAULT_RESIDUAL = 0.0
 #: camera lanes of one display pass at the most (a render of more is split into passes)
 MAX_PASS_LANES = 1 << 22
 
@@ -177,6 +179,18 @@ def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes):
     return total
 
 
+def with_residual(paths, seed, gather_samples, chain, used, read, value, share):
+    """``value`` at the read points ``read`` (the display's reading of the solution) made
+    unbiased against the gather: a random ``share`` of those lanes also gathers
+    (:func:`gather_elsewhere`, on a stream of their own) and adds (gather - value) / share.
+    The expected value of every lane is then the gather's, whatever the solution's
+    reconstruction error there; the price is the gather's noise over ``share``."""
+    pick = seeds.pcg(dr.width(read), seed, "residual")
+    check = read & (pick.next_float32(read) < share)
+    gathered = gather_elsewhere(paths, seeds.stream(seed, "residual", 1), gather_samples, chain, used, check)
+    return value + dr.select(check, (gathered - value) / share, 0.0)
+
+
 def pass_layout(spp, pixels):
     """(camera samples per pixel and pass, passes): spp = their product, one pass at
     most MAX_PASS_LANES lanes (the largest divisor of spp that fits)."""
@@ -260,10 +274,13 @@ def with_edges(frame, cam, chain, edges, value, state, block="camera"):
     return value + emission_shares(frame, cam, chain, edges, state, block)
 
 
-def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1):
+def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, steps=None, emitter_samples=1,
+           residual=0.0):
     """The image of ``frame`` from ``view`` (spp camera samples per pixel, in passes);
     ``steps``: the render's step driver (one step per pass), or None; ``emitter_samples``:
-    camera rays per camera sample for the emission seen directly (:func:`edge_pixels`)."""
+    camera rays per camera sample for the emission seen directly (:func:`edge_pixels`);
+    ``residual``: the share of the camera samples at read points that also gather
+    (:func:`with_residual`; 0: none)."""
     scene, table = frame.scene, view.table
     edges = edge_pixels(frame, max_depth, hide_emitters, emitter_samples)
     paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
@@ -277,6 +294,9 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         rng = seeds.pcg(cam.count, seed, "camera_path", 2)
         value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng,
                              light_samples(cam, seeds.stream(frame.seed, "display"), k))
+        if residual > 0:
+            value = with_residual(paths, seeds.stream(frame.seed, "residual", k), gather_samples, chain, used,
+                                  diffuse, value, residual)
         if not view.all_diffuse:     # (purely diffuse surfaces, no gap's mouth: nothing to gather)
             value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
         value = chain.emission + chain.throughput * value

@@ -51,6 +51,11 @@ DISPLAY_ROWS = (
         "field departs at a corner from the patch's own value by more than this share of it (a lit strip "
         "beside a shadow; 0.5 measured), decided on a second solve with another seed, so a render solves "
         "twice (``mi_plugins.solution.steep``); not with ``refine``; 0: never"),
+    Row("residual", "float", "0",
+        "0 .. 1: the share of the display's camera samples at the points it reads that also gather and add "
+        "the gather's difference from the reading, divided by the share: the image's expected value is then "
+        "the gather's at every pixel (no reconstruction bias), with the gather's noise over the share "
+        "(``mi_plugins.solution.display.with_residual``); a display mode only; 0: never"),
     Row("preview_every", "int", "0",
         ">= 0: with ``integrator.preview_callback = f(image, done, total)`` set, every N steps of a solve "
         "the image of the solution so far (one sample per pixel); 0: none"),
@@ -72,6 +77,10 @@ class SolutionIntegrator(CoreIntegrator):
         if self.steep > 0 and getattr(self, "refine", False):
             raise p.conflict(("steep", "refine"), "steep > 0 with refine=false (the second solve that decides "
                              "the steep patches would split other patches), or steep=0")
+        self.residual = p.float("residual", display.DEFAULT_RESIDUAL, lo=0, hi=1, note="0: never")
+        if self.residual > 0 and self.display == "gather":
+            raise p.conflict(("residual", "display"), "residual > 0 with a display mode of the solution "
+                             "('smooth', 'patches', 'baked'), or residual=0")
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
@@ -171,7 +180,7 @@ class SolutionIntegrator(CoreIntegrator):
         steep = self.steep_patches(frame, solution, table) if self.display == "smooth" and self.steep > 0 else None
         view = display.View(solution, table, self.display, self.crowd_reach, steep)
         display.render(frame, view, self.max_depth, getattr(self, "mirror_depth", -1), self.hide_emitters,
-                       getattr(self, "gather_samples", 1), steps, self.emitter_samples)
+                       getattr(self, "gather_samples", 1), steps, self.emitter_samples, self.residual)
 
     def _previewer(self, scene, sensor, table):
         """``preview(solution, done, total, patches=table)``: the image (one camera sample per pixel) of the
