@@ -108,6 +108,11 @@ class View:
         self.mode, self.table, self.solution = mode, table, solution
         smooth = mode == "smooth"
         self.surfaces = Surfaces(table.scene, table, crowd_reach if smooth else 0.0, steep if smooth else None)
+        # the gathers' paths read on at the patches the smooth display reads in every mode:
+        # a gather reaching a crowded patch (a panel's foot, a corner) goes on, as the smooth
+        # display's own camera paths do, instead of reading the light interpolated there
+        self.gather_surfaces = self.surfaces if smooth or not crowd_reach else Surfaces(table.scene, table,
+                                                                                      crowd_reach)
         self.all_diffuse = bool(np.all(self.surfaces.diffuse_np)) and not self.surfaces.any_unread
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
@@ -283,7 +288,8 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
     (:func:`with_residual`; 0: none)."""
     scene, table = frame.scene, view.table
     edges = edge_pixels(frame, max_depth, hide_emitters, emitter_samples)
-    paths = CameraPaths(scene, table, view.surfaces, view.read, view.stored, max_depth, mirror_depth, hide_emitters)
+    paths = CameraPaths(scene, table, view.gather_surfaces, view.read, view.stored, max_depth, mirror_depth,
+                        hide_emitters)
     per_pixel, passes = pass_layout(frame.spp, frame.sample_pixels())
     frame.camera_passes(per_pixel, passes)
     def step(k):
