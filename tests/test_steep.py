@@ -88,3 +88,14 @@ def test_steep_patches_are_decided_on_a_second_solve(monkeypatch):
     monkeypatch.setattr(solution_integrator.SolutionIntegrator, "steep_patches", on_itself)
     bad, bad_se = _image_mean(scene, settings, 64, 48, 61)
     assert bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
+
+
+@pytest.mark.parametrize("display", ["smooth", "baked"])
+@pytest.mark.xfail(strict=True, reason="known defect: the field's planes overshoot below zero beside the lit strip: "
+                   "negative pixels (qmc_lighttrace, 64 spp: smooth 432 of 4096 down to -0.015, baked 521 down "
+                   "to -0.028; a min-max limiter removes them but loses the exact linear fields, docs/solutions.md)")
+def test_the_displays_show_no_negative_light_beside_the_strip(display):
+    scene = mi.load_dict(panel_on_floor(lift=0.05, resolution=64))
+    integrator = mi.load_dict({"type": "qmc_lighttrace", "samples": 100000, "display": display})
+    image = np.array(mi.render(scene, integrator=integrator, spp=64, seed=budget.seed(3)))[..., :3]
+    assert image.min() >= 0.0, (image.min(), int((image.min(axis=-1) < 0).sum()))
