@@ -48,6 +48,23 @@ def blocks(image, size=8):
     return image[:h, :w].reshape(h // size, size, w // size, size, -1).mean(axis=(1, 3, 4))
 
 
+def seed_renders(d, params, spp, seeds):
+    """(images, seconds): one render of ``params`` (``patch_size`` 'half': half the scene's
+    default) at ``spp`` per seed 1 .. ``seeds``, each on the scene ``d`` loaded anew, timed
+    from the loaded scene to the image."""
+    images, seconds = [], []
+    for seed in range(1, seeds + 1):
+        scene = mi.load_dict(d)
+        settings = dict(params)
+        if settings.get("patch_size") == "half":
+            settings["patch_size"] = 0.5 * default_patch_size(scene)
+        integrator = mi.load_dict(settings)
+        t0 = time.perf_counter()
+        images.append(np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed), dtype=np.float64))
+        seconds.append(time.perf_counter() - t0)
+    return images, seconds
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", default="room", choices=interiors.SCENES)
@@ -55,25 +72,14 @@ def main():
     p.add_argument("--ref-spp", type=int, default=4096)
     p.add_argument("--seeds", type=int, default=4)
     args = p.parse_args()
-    if not os.path.exists(ladder.reference_file(args, args.scene)):
-        ladder.render_reference(args, args.scene)
-    ref, ref_var, keep = ladder.reference(args, args.scene)
+    ref, ref_var, keep = ladder.rendered_reference(args, args.scene)
     d = interiors.scene_dict(args.scene, args.resolution)
     pct = lambda value: 100 * value / ref.mean()
     print("| `qmc_lighttrace` | seconds | RMSE | bias (range) | away from emitters: bias (range) | noise "
           "| 8 x 8 blocks off by > 1 % (worst) | image mean |")
     print("|---|---|---|---|---|---|---|---|")
     for label, params, spp in SETTINGS:
-        images, seconds = [], []
-        for seed in range(1, args.seeds + 1):
-            scene = mi.load_dict(d)
-            settings = dict(params)
-            if settings.get("patch_size") == "half":
-                settings["patch_size"] = 0.5 * default_patch_size(scene)
-            integrator = mi.load_dict(settings)
-            t0 = time.perf_counter()
-            images.append(np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed), dtype=np.float64))
-            seconds.append(time.perf_counter() - t0)
+        images, seconds = seed_renders(d, params, spp, args.seeds)
         parts = report.split(images, ref, ref_var, keep)
         rel = blocks(np.mean(images, axis=0)) / blocks(ref) - 1
         span = lambda suffix: "%.2f %% (%.2f-%.2f)" % ((pct(parts["bias" + suffix]),)

@@ -11,7 +11,6 @@ a ratio falling toward 1.
 import argparse
 import os
 import sys
-import time
 
 import mitsuba as mi
 
@@ -22,6 +21,7 @@ import mi_plugins  # noqa: E402,F401  (registers the plugins)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+import display_bias  # noqa: E402
 import interior_ladder as ladder  # noqa: E402
 import interior_report as report  # noqa: E402
 import interiors  # noqa: E402
@@ -37,9 +37,7 @@ def main():
     p.add_argument("--residual", type=float, default=0.25)
     p.add_argument("--integrator", default="qmc_lighttrace", choices=("qmc_lighttrace", "ray_bundle"))
     args = p.parse_args()
-    if not os.path.exists(ladder.reference_file(args, args.scene)):
-        ladder.render_reference(args, args.scene)
-    ref, ref_var, keep = ladder.reference(args, args.scene)
+    ref, ref_var, keep = ladder.rendered_reference(args, args.scene)
     d = interiors.scene_dict(args.scene, args.resolution)
     pct = lambda value: 100 * value / ref.mean()
     budget = "samples" if args.integrator == "qmc_lighttrace" else "iterations"
@@ -53,13 +51,7 @@ def main():
         for k in range(args.rungs):
             settings = dict({"type": args.integrator, "display": "smooth", budget: start << k}, **extra)
             spp = 32 << k
-            images, seconds = [], []
-            for seed in range(1, args.seeds + 1):
-                scene = mi.load_dict(d)
-                integrator = mi.load_dict(settings)
-                t0 = time.perf_counter()
-                images.append(np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed), np.float64))
-                seconds.append(time.perf_counter() - t0)
+            images, seconds = display_bias.seed_renders(d, settings, spp, args.seeds)
             parts = report.split(images, ref, ref_var, keep)
             rmse = np.hypot(parts["bias"], parts["noise"])
             lo, hi = report.bias_range(parts)

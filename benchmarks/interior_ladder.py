@@ -78,6 +78,13 @@ def render_reference(args, sname):
     return dict(seconds=time.perf_counter() - t0, spp=n * chunk)
 
 
+def rendered_reference(args, sname):
+    """:func:`reference`, rendered first where it is not cached yet."""
+    if not os.path.exists(reference_file(args, sname)):
+        render_reference(args, sname)
+    return reference(args, sname)
+
+
 def reference(args, sname):
     """(image, per-pixel variance of its noise (per channel), mask of the pixels away from emitters)."""
     with np.load(reference_file(args, sname)) as f:

@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 import budget
-from mi_plugins.verify.conformance import runner
-from test_darkness import panel_on_floor
+from test_steep import panel_bands
 
 pytestmark = pytest.mark.skipif(not mi.variant(), reason="needs a Mitsuba variant")
 
@@ -16,17 +15,6 @@ pytestmark = pytest.mark.skipif(not mi.variant(), reason="needs a Mitsuba varian
 #: its foot (rows 32-35) and the shadowed floor in front of the strip that the light
 #: passing under the panel lights (rows 44-47), where the smooth field is steepest
 BANDS = {"face": np.s_[32:36, 24:40], "floor": np.s_[44:48, 24:40]}
-
-
-def _bands(integrator, spp, runs, seed):
-    """{band: (mean, standard error)} over ``runs`` renders."""
-    scene = panel_on_floor(lift=0.05, resolution=64)
-    images = runner.render_runs(scene, integrator, spp, [budget.seed(seed) * 1000 + r for r in range(runs)])[0]
-    out = {}
-    for name, rows in BANDS.items():
-        means = images[(slice(None),) + rows][..., :3].mean(axis=(1, 2, 3))
-        out[name] = means.mean(), means.std(ddof=1) / np.sqrt(runs)
-    return out
 
 
 @pytest.mark.parametrize("integrator", [
@@ -37,12 +25,12 @@ def test_the_residual_check_removes_the_smooth_display_bias_beside_the_strip(int
     its foot and on the shadowed floor in front of the lit strip; test of the test: without
     it one of them is more than 4 standard errors off (the floor +547 % / +588 %, z 37 /
     52, qmc_lighttrace / ray_bundle at 16 spp)."""
-    ref = _bands({"type": "path"}, 2048, 8, 50)
+    ref = panel_bands({"type": "path"}, 2048, 8, 50, BANDS)
     settings = dict(integrator, display="smooth")
-    checked = _bands(dict(settings, residual=0.5), 64, 8, 55)
+    checked = panel_bands(dict(settings, residual=0.5), 64, 8, 55, BANDS)
     for name, (mean, se) in checked.items():
         budget.close(mean, ref[name][0], np.hypot(se, ref[name][1]),
                      what="smooth display with the residual check on the %s / path" % name)
-    plain = _bands(settings, 64, 8, 55)
+    plain = panel_bands(settings, 64, 8, 55, BANDS)
     z = [(plain[name][0] - ref[name][0]) / np.hypot(plain[name][1], ref[name][1]) for name in BANDS]
     assert max(z) > 4, (z, plain, ref)
