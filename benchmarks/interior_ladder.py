@@ -124,6 +124,14 @@ class Fresh:
         self.table = last[0][1]
 
 
+def compile_seconds():
+    """Seconds of kernel compilation since Dr.Jit's kernel history was last read (which
+    clears it; ``JitFlag.KernelHistory`` on): the cache misses. Kernels with a virtual
+    call (Mitsuba's own ``path`` as the package's) are compiled anew for every scene
+    object, whose plugins' instance ids they hold."""
+    return sum(k.get("backend_time", 0.0) for k in dr.kernel_history() if not k.get("cache_hit", 1)) / 1e3
+
+
 def timed(fresh, method, spp, seed, pixels):
     """(image, seconds from the loaded scene to the image in numpy, extras)."""
     extra = dict(load_s=fresh.load(), loadavg=os.getloadavg()[0])
@@ -132,9 +140,7 @@ def timed(fresh, method, spp, seed, pixels):
     integ = mi.load_dict(integrator_of(method, spp, pixels))
     image = np.array(mi.render(fresh.scene, integrator=integ, spp=spp, seed=seed), dtype=np.float64)
     seconds = time.perf_counter() - t0
-    # kernels compiled inside the timed render (cache misses: the package's kernels differ per scene object)
-    extra["compile_s"] = sum(k.get("backend_time", 0.0) for k in dr.kernel_history()
-                             if not k.get("cache_hit", 1)) / 1e3
+    extra["compile_s"] = compile_seconds()
     extra["seconds_nc"] = max(seconds - extra["compile_s"], 1e-6)
     cached = getattr(integ, "_cached", None)
     if cached:

@@ -3,7 +3,11 @@ integrators (the patch table with its clusters, dark splits and gap mouths, and 
 smooth display's field) on the ``room`` interior (`interiors.py`) with a 'scanned'
 sculpture of 0 to about 1 M more triangles on its table, the scene loaded anew for every
 measurement, the setup cache off (what a first render pays) and then on (what a later
-process pays for the same scene). Kernels are warmed up on another scene object first.
+process pays for the same scene). Kernels are warmed up on another scene object first;
+the kernels that hold a virtual call (over the scene's shapes, emitters, BSDFs) compile
+again for every scene object, Mitsuba's own as the package's: that compilation is
+measured (Dr.Jit's kernel history) and shown apart, as the interior benchmarks leave it
+out of their ratios.
 
     python3 benchmarks/setup_curve.py [--sizes 0,100,250,500,1000] [--repeats 3] [--write-docs]
 
@@ -17,6 +21,7 @@ import sys
 import tempfile
 import time
 
+import drjit as dr
 import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
@@ -27,6 +32,7 @@ from mi_plugins.solution import patchfield  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import interior_geometry as ig  # noqa: E402
 import interiors  # noqa: E402
+from interior_ladder import compile_seconds  # noqa: E402
 
 DOC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "interiors.md")
 
@@ -42,18 +48,22 @@ def scene_with(extra_k):
 
 
 def setup_seconds(d, integrator):
-    """(seconds of the patch table, of the smooth field, patch count, triangles) on a new
-    scene object, as ``integrator`` builds them."""
+    """(seconds of the patch table, of the smooth field, patch count, triangles, seconds of
+    kernel compilation inside them) on a new scene object, as ``integrator`` builds them;
+    the table's and the field's seconds leave the compilation out."""
     scene = mi.load_dict(d)
     integ = mi.load_dict({"type": integrator, "display": "smooth"})
     triangles = sum(int(s.face_count()) for s in scene.shapes() if isinstance(s, mi.Mesh))
     build._LAST.clear()
+    compile_seconds()
     t0 = time.perf_counter()
     table = integ.patch_table(scene)
     t1 = time.perf_counter()
+    c1 = compile_seconds()
     patchfield.field_of(table)
     t2 = time.perf_counter()
-    return t1 - t0, t2 - t1, int(table.front_count), triangles
+    c2 = compile_seconds()
+    return t1 - t0 - c1, t2 - t1 - c2, int(table.front_count), triangles, c1 + c2
 
 
 def main():
@@ -67,6 +77,7 @@ def main():
     # 20 k^2 triangles per sculpture
     ks = [0 if int(s) == 0 else max(1, int(round((int(s) * 1000 / 20) ** 0.5))) for s in args.sizes.split(",")]
     os.environ[setup_cache.ENV] = "off"
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
     setup_seconds(scene_with(0), args.integrator)       # (kernels compiled on another scene object)
     rows = []
     for k in ks:
@@ -77,16 +88,18 @@ def main():
         setup_seconds(d, args.integrator)                 # (fills the cache)
         warm = [setup_seconds(d, args.integrator) for _ in range(args.repeats)]
         table, field = statistics.median(c[0] for c in cold), statistics.median(c[1] for c in cold)
-        cached = statistics.median(w[0] + w[1] for w in warm)
-        rows.append((cold[0][3], cold[0][2], table, field, table + field, cached))
-        print("%9d triangles %7d patches: table %.2f s, field %.2f s, setup %.2f s; from the cache %.2f s"
-              % rows[-1], flush=True)
+        cached = statistics.median(w[0] + w[1] for w in warm)          # (compilation left out)
+        compiled = statistics.median(c[4] for c in cold)
+        rows.append((cold[0][3], cold[0][2], table, field, table + field, compiled, cached))
+        print("%9d triangles %7d patches: table %.2f s, field %.2f s, setup %.2f s (and %.2f s of compilation); "
+              "from the cache %.2f s" % rows[-1], flush=True)
     lines = ["Setup of `%s` (`display='smooth'`) on `room` with a sculpture of more triangles, median of %d, "
              "load average %.1f (`python3 benchmarks/setup_curve.py`):" % (args.integrator, args.repeats,
                                                                            os.getloadavg()[0]), "",
-             "| triangles | patches | patch table (s) | field (s) | setup (s) | setup from the cache (s) |",
-             "|---:|---:|---:|---:|---:|---:|"]
-    lines += ["| %d | %d | %.2f | %.2f | %.2f | %.2f |" % row for row in rows]
+             "| triangles | patches | patch table (s) | field (s) | setup (s) | compilation in it (s) "
+             "| setup from the cache (s) |",
+             "|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += ["| %d | %d | %.2f | %.2f | %.2f | %.2f | %.2f |" % row for row in rows]
     print("\n".join(lines))
     if args.write_docs:
         text = open(DOC).read()

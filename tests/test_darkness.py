@@ -196,7 +196,7 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
     budget.close(mean, ref, np.hypot(se, ref_se), what="gather with the cut patches split / path")
     build._LAST.clear()
     with monkeypatch.context() as patch:
-        patch.setattr(darkness, "cut_fractions", lambda table, *a: np.zeros((table.front_count, 2)))
+        patch.setattr(darkness, "cut_fractions", lambda table, *a, **k: np.zeros((table.front_count, 2)))
         bad, bad_se = _mean_and_se(scene, settings, 8, 16, 51)
     build._LAST.clear()
     assert bad - ref > 4 * np.hypot(bad_se, ref_se) and bad > 1.08 * ref, (bad, ref, bad_se, ref_se)
@@ -230,15 +230,16 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
 
 @pytest.mark.parametrize("degree", [1, 2])
 def test_vertex_values_keep_the_patch_averages(degree):
-    """A field linear in position is reconstructed as it is; a curved one's interpolated
-    patch averages come closer to the patch values with the corrections."""
+    """A field linear in position (and, as light, nowhere negative) is reconstructed as it
+    is, the field's limiter included; a curved one's interpolated patch averages come
+    closer to the patch values with the corrections."""
     scene = mi.load_dict({"type": "scene", "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90)}})
     table = MeshTable(scene, "test", h=0.1)
     field = PatchField(table)
     el = table.elements_np
     centre = np.stack([np.bincount(el["patch"], el["centre"][:, k], minlength=table.front_count)
                        for k in range(3)], axis=1) / np.bincount(el["patch"], minlength=table.front_count)[:, None]
-    values = (1 + centre[:, 0] + 0.5 * centre[:, 2] + (3 * centre[:, 0] ** 2 if degree == 2 else 0))[:, None]
+    values = (2 + centre[:, 0] + 0.5 * centre[:, 2] + (3 * centre[:, 0] ** 2 if degree == 2 else 0))[:, None]
     patch, vertex, weight, _ = field._averages
 
     def residual(vertex_values):
@@ -268,7 +269,7 @@ def test_a_loaded_solution_replays_the_recorded_dark_splits(tmp_path, monkeypatc
     image = np.array(mi.render(scene, integrator=integ, spp=1, seed=0))
     path = solution.save(str(tmp_path / "room.npz"))
     # another judgement of the dark points (another process): nothing is dark any more
-    monkeypatch.setattr(darkness, "dark_fractions", lambda table, *a: np.zeros((table.front_count, 2)))
+    monkeypatch.setattr(darkness, "dark_fractions", lambda table, *a, **k: np.zeros((table.front_count, 2)))
     scene = mi.load_dict(room(), parallel=False)
     again = Solution.load(path, scene)
     # per shape (a load follows the scene's shape order, which may differ from the solve's)

@@ -84,16 +84,18 @@ def _black_backs(scene):
     return mi.Bool(table)
 
 
-def _side_points(table, points):
-    """The ``points`` stratified points of every front patch side of ``table`` measured
-    (front sides, and back sides of the shapes that reflect on both sides): (interactions,
-    the side's normal, ray origins just off that side, the point's random stream, patch
-    sides, grid width, the measured back sides' patches)."""
+def _side_points(table, points, only=None):
+    """The ``points`` stratified points of the front patch sides of ``table`` measured
+    (front sides, and back sides of the shapes that reflect on both sides; of the front
+    patches ``only``, default all): (interactions, the side's normal, ray origins just off
+    that side, the point's random stream, patch sides, grid width, (the measured front
+    sides' patches, the measured back sides' patches))."""
     from mi_plugins.base.queries import reflects_on_both_sides
-    count = table.front_count
+    fronts = np.arange(table.front_count) if only is None else np.asarray(only, np.int64)
+    count = len(fronts)
     two = np.array([reflects_on_both_sides(shape) for shape in table.shapes], dtype=bool)
-    backs = np.flatnonzero(two[table.shape_index_np[:count]])
-    patches = np.concatenate([np.arange(count), backs]).astype(np.uint32)
+    backs = fronts[two[table.shape_index_np[fronts]]]
+    patches = np.concatenate([fronts, backs]).astype(np.uint32)
     sides, grid = len(patches), int(round(np.sqrt(points)))
     n = sides * grid * grid
     lane = dr.arange(mi.UInt32, n)
@@ -102,27 +104,31 @@ def _side_points(table, points):
     sample = mi.Point2f((mi.Float(k % grid) + rng.next_float32()) / grid,
                         (mi.Float(k // grid) + rng.next_float32()) / grid)
     si = table.surface_interaction(dr.gather(mi.UInt32, mi.UInt32(patches), which), sample)
-    n_side = si.n * dr.select(which < count, 1.0, -1.0)
+    # (the count opaque: a literal of it would compile the kernel anew for every table)
+    n_side = si.n * dr.select(which < dr.opaque(mi.UInt32, count), 1.0, -1.0)
     origin = si.p + n_side * (1e-5 * (1.0 + dr.max(dr.abs(si.p))))
-    return si, n_side, origin, rng, sides, grid, backs
+    return si, n_side, origin, rng, sides, grid, (fronts, backs)
 
 
-def _per_side(table, flags, sides, grid, backs):
-    """numpy (front_count, 2): the share of each side's points where ``flags`` holds."""
+def _per_side(table, flags, sides, grid, measured):
+    """numpy (front_count, 2): the share of each measured side's points where ``flags``
+    holds (0 on the sides not measured)."""
+    fronts, backs = measured
     share = np.array(flags, dtype=np.float64).reshape(sides, grid * grid).mean(axis=1)
     out = np.zeros((table.front_count, 2))
-    out[:, 0] = share[:table.front_count]
-    out[backs, 1] = share[table.front_count:]
+    out[fronts, 0] = share[:len(fronts)]
+    out[backs, 1] = share[len(fronts):]
     return out
 
 
-def dark_fractions(table, points=POINTS, directions=DIRECTIONS):
+def dark_fractions(table, points=POINTS, directions=DIRECTIONS, only=None):
     """numpy (front_count, 2): the share of the points of each front patch of ``table`` (in
-    its scene) on its front and back side that are dark (see the module docstring); back
-    sides are measured on the shapes that reflect on both sides (``twosided``), else 0.
-    The same whether ``table`` keeps back-side patches or not."""
+    its scene; of the front patches ``only``, default all, the others 0) on its front and
+    back side that are dark (see the module docstring); back sides are measured on the
+    shapes that reflect on both sides (``twosided``), else 0. The same whether ``table``
+    keeps back-side patches or not."""
     scene = table.scene
-    si, n_side, origin, rng, sides, grid, backs = _side_points(table, points)
+    si, n_side, origin, rng, sides, grid, measured = _side_points(table, points, only)
     rays = int(round(np.sqrt(directions)))
     n = sides * grid * grid
     frame = mi.Frame3f(n_side)
@@ -148,11 +154,12 @@ def dark_fractions(table, points=POINTS, directions=DIRECTIONS):
         u = mi.Point2f((j + 0.5) / LIGHT_SAMPLES, rng.next_float32(dark))
         ds, weight = scene.sample_emitter_direction(si, u, True, dark)
         dark &= ~((dr.dot(ds.d, n_side) > 0) & dr.any(mi.Color3f(weight) != 0))
-    return _per_side(table, dark, sides, grid, backs)
+    return _per_side(table, dark, sides, grid, measured)
 
 
-def cut_fractions(table, points=POINTS):
-    """numpy (front_count, 2), as :func:`dark_fractions`: the share of each patch side's
+def cut_fractions(table, points=POINTS, only=None):
+    """numpy (front_count, 2), as :func:`dark_fractions` (of the front patches ``only``,
+    default all): the share of each patch side's
     points cut off from one of them (the point nearest the middle of the grid) by a
     surface that crosses the patch: the segment between the two, ``CUT_HEIGHT`` of the
     patch's size above that side, meets a surface more than 30 degrees from the patch's
@@ -163,16 +170,16 @@ def cut_fractions(table, points=POINTS):
     patch (its own curvature, a rug on it) do not cut it."""
     from mi_plugins.patches.refinement import patch_sizes
     scene = table.scene
-    _, n_side, origin, _, sides, grid, backs = _side_points(table, points)
+    _, n_side, origin, _, sides, grid, measured = _side_points(table, points, only)
     # the segments run a quarter of the patch's size above it: a panel standing just
     # above the floor (a gap the light hardly passes) cuts the patch too
-    size = patch_sizes(table)[np.concatenate([np.arange(table.front_count), backs])]
+    size = patch_sizes(table)[np.concatenate(measured)]
     origin = origin + n_side * mi.Float(np.repeat(CUT_HEIGHT * size, grid * grid))
     middle = (grid // 2) * grid + grid // 2
     lane = dr.arange(mi.UInt32, sides * grid * grid)
     at = lane - lane % (grid * grid) + middle
     target = mi.Point3f(*(dr.gather(mi.Float, origin[c], at) for c in range(3)))
-    return _per_side(table, crossed(scene, origin, target, n_side), sides, grid, backs)
+    return _per_side(table, crossed(scene, origin, target, n_side), sides, grid, measured)
 
 
 def crossed(scene, start, end, normal):
@@ -206,14 +213,15 @@ def split_in_the_dark(table, levels):
     (:func:`replay_dark`) instead of measuring again."""
     if table.element_count > MAX_ELEMENTS:
         return table
-    base, room = table, int(MAX_GROWTH * table.front_count)
+    base, room, only = table, int(MAX_GROWTH * table.front_count), None
     for _ in range(int(levels)):
-        split = np.union1d(straddling(dark_fractions(table)), straddling(cut_fractions(table)))
+        split = np.union1d(straddling(dark_fractions(table, only=only)), straddling(cut_fractions(table, only=only)))
         split = split[np.argsort(-table.areas_np[split], kind="stable")][:room // 3]
         if not len(split):
             break
         before = table.front_count
-        table = split_recorded(table, np.sort(split))
+        table, origin = split_recorded(table, np.sort(split))
+        only = np.flatnonzero(np.isin(origin, split))            # (the children, measured next)
         room -= table.front_count - before
     if table is not base:         # (a table that is its own base keeps None: not a reference cycle)
         table.dark_base = base
@@ -234,8 +242,8 @@ def renumbered(table, rounds, order, step=None):
     was chosen on, in a stored scene's shape order) in the numbering of ``table``'s
     scene, whose stored shape k is its shape ``order[k]``, and ``table`` split by them,
     round after round (``step(table, patches)``: the next round's table; default
-    :func:`split_recorded`)."""
-    step = step or split_recorded
+    :func:`split_recorded`'s)."""
+    step = step or (lambda t, split: split_recorded(t, split)[0])
     out = []
     for split in rounds:
         split = np.asarray(split, np.int64)
@@ -252,7 +260,7 @@ def split_by(table, rounds):
     """``table`` (unsplit) split by the recorded ``rounds``, its ``dark_base`` set."""
     split = table
     for patches in rounds:
-        split = split_recorded(split, np.asarray(patches, np.int64))
+        split = split_recorded(split, np.asarray(patches, np.int64))[0]
     if split is not table:
         split.dark_base = table
     return split
@@ -271,11 +279,12 @@ _REPLAYED = []
 
 
 def split_recorded(table, split):
-    """``table.refined(split)``, the round recorded in its ``dark_rounds``."""
+    """``table.refined(split)`` (the new table, the old patch of each new front patch), the
+    round recorded in the new table's ``dark_rounds``."""
     rounds = table.dark_rounds + [[int(i) for i in split]]
-    table = table.refined(split)[0]
+    table, origin = table.refined(split)
     table.dark_rounds = rounds
-    return table
+    return table, origin
 
 
 #: ``dark_levels``, read by :func:`read_levels`

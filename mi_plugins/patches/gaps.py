@@ -74,7 +74,7 @@ def side_points(table):
     at = lambda i: INSET + (1.0 - 2.0 * INSET) * mi.Float(i) / (GRID - 1)
     si = table.surface_interaction(dr.gather(mi.UInt32, mi.UInt32(front.astype(np.uint32)), which),
                                    mi.Point2f(at(k % GRID), at(k // GRID)))
-    normal = si.n * dr.select(which < count, 1.0, -1.0)
+    normal = si.n * dr.select(which < dr.opaque(mi.UInt32, count), 1.0, -1.0)
     size = dr.gather(mi.Float, mi.Float(patch_sizes(table)[front]), which)
     return si, normal, size, len(front), front
 
@@ -92,27 +92,28 @@ def _mouths(table):
     scene = table.scene
     si, normal, size, sides, front = side_points(table)
     hit = _probe(scene, si.p + normal * _offset(si.p), normal, size)
-    covered = np.array(hit.is_valid(), dtype=bool)
-    mouth = np.zeros(sides, dtype=bool)
-    if covered.any():
-        # the covered points alone, in one kernel per direction along the surface (the
-        # same kernel four times: its direction an opaque index)
-        lanes = mi.UInt32(np.flatnonzero(covered).astype(np.uint32))
+    covered = np.array(hit.is_valid(), dtype=bool).reshape(sides, -1)
+    mouth = covered.any(axis=1) & ~covered.all(axis=1)           # (partly covered)
+    # the ends of the gaps under the wholly covered sides: their points alone, in one
+    # kernel per direction along the surface (the same kernel four times: its direction
+    # an opaque index)
+    test = (covered & ~mouth[:, None]).ravel()
+    if test.any():
+        lanes = mi.UInt32(np.flatnonzero(test).astype(np.uint32))
         pick = lambda a: dr.gather(type(a), a, lanes)
         p, n, reach = pick(si.p), pick(normal), pick(size)
         middle = p + n * (0.5 * pick(hit.t))
         frame = mi.Frame3f(n)
-        ends = np.zeros(len(np.flatnonzero(covered)), dtype=bool)
+        ends = np.zeros(int(test.sum()), dtype=bool)
         for k in range(4):              # (four directions along the surface)
             turn = dr.opaque(mi.UInt32, k)
             along = dr.select(turn < 2, frame.s, frame.t) * dr.select(turn % 2 == 0, 1.0, -1.0)
             start = middle + along * reach
             found = _probe(scene, start, n, reach).is_valid() & _probe(scene, start, -n, reach).is_valid()
             ends |= ~np.array(found, dtype=bool)
-        covered = covered.reshape(sides, -1)
         end_at = np.zeros(covered.size, dtype=bool)
-        end_at[np.flatnonzero(covered)] = ends
-        mouth = (covered.any(axis=1) & ~covered.all(axis=1)) | end_at.reshape(sides, -1).any(axis=1)
+        end_at[np.flatnonzero(test)] = ends
+        mouth |= end_at.reshape(sides, -1).any(axis=1)
     out = np.zeros(table.front_count, dtype=bool)
     out[front[mouth]] = True
     return out

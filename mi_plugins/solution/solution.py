@@ -209,13 +209,13 @@ class Solution:
         solution = cls(arrays["tables"], arrays["areas"], meta, arrays.get("error"), direct_in_tables,
                        direct=arrays.get("direct"), radiance=arrays.get("radiance"), emission=arrays.get("emission"))
         order = solution.check_scene(scene)
-        from mi_plugins.patches.darkness import renumbered, split_in_the_dark, split_recorded
+        from mi_plugins.patches.darkness import renumbered, split_in_the_dark
         base = MeshTable(scene, meta.get("integrator", "solution"), h=meta["patch_size"],
                          subdivide=meta["subdivide"], cluster=meta.get("cluster", True))
         # the recorded dark splits and refinements, in this scene's numbering of the patches
         # (its shapes may load in another order); a file without dark splits: measured again
         if "dark_splits" in meta:
-            meta["dark_splits"], dark = renumbered(base, meta["dark_splits"], order, split_recorded)
+            meta["dark_splits"], dark = renumbered(base, meta["dark_splits"], order)
             if dark is not base:
                 dark.dark_base = base
         else:
