@@ -23,8 +23,8 @@ BANDS = {"face": np.s_[32:36, 24:40], "floor": np.s_[44:48, 24:40]}
 def test_the_residual_check_removes_the_smooth_display_bias_beside_the_strip(integrator):
     """With ``residual=0.5`` the smooth display matches ``path`` on the panel's face above
     its foot and on the shadowed floor in front of the lit strip; test of the test: without
-    it one of them is more than 4 standard errors off (the floor +547 % / +588 %, z 37 /
-    52, qmc_lighttrace / ray_bundle at 16 spp)."""
+    it one of them is more than 4 standard errors off (the face +41 .. +50 %, z 6.7 .. 8.5,
+    qmc_lighttrace / ray_bundle; the floor +547 % / +588 % before the field's limiter)."""
     ref = panel_bands({"type": "path"}, 2048, 8, 50, BANDS)
     settings = dict(integrator, display="smooth")
     checked = panel_bands(dict(settings, residual=0.5), 64, 8, 55, BANDS)

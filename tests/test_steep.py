@@ -39,26 +39,39 @@ def strip_reference():
 
 def test_steep_patches_gather_beside_the_lit_strip(strip_reference):
     """``ray_bundle``'s smooth display with ``steep=0.5`` matches ``path`` on the shadowed
-    floor beside the lit strip (+2.0 %, z +0.2 measured); test of the test: without it
-    (``steep=0``, the default) the field carries the strip's light into the shadow, +588 %
-    (z +52)."""
+    floor beside the lit strip (-12.8 %, z -1.9 measured); test of the test: without it
+    (``steep=0``, the default) the field carries the strip's light into the shadow, +26 %
+    (z +5.9 at 64 spp; +588 % before the field's limiter)."""
     ref, ref_se = strip_reference
     settings = {"type": "ray_bundle", "iterations": 24, "display": "smooth"}
     mean, se = _band(dict(settings, steep=0.5), 16, 8, 55)
     budget.close(mean, ref, np.hypot(se, ref_se), what="ray_bundle smooth display with steep beside the strip / path")
-    bad, bad_se = _band(dict(settings, steep=0.0), 16, 8, 55)
+    bad, bad_se = _band(dict(settings, steep=0.0), 64, 8, 55)
+    assert bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
+
+
+def test_the_limited_smooth_display_beside_the_lit_strip(strip_reference, monkeypatch):
+    """``qmc_lighttrace``'s default smooth display matches ``path`` on the shadowed floor
+    beside the lit strip: the field's limiter (mi_plugins.solution.limiter) keeps the
+    vertices there within their patches' values (+2.6 %, z +0.2; +6.0 %, z +0.9 at 16 x
+    128 spp). Test of the test: without the limiter the planes fitted across the strip's
+    edge carry its light into the shadow, +547 % (z +37)."""
+    from mi_plugins.solution import limiter
+    ref, ref_se = strip_reference
+    settings = {"type": "qmc_lighttrace", "samples": 100000, "display": "smooth"}
+    mean, se = _band(settings, 16, 8, 55)
+    budget.close(mean, ref, np.hypot(se, ref_se), what="limited smooth display beside the strip / path")
+    monkeypatch.setattr(limiter, "limited", lambda out, flat, groups: out)
+    bad, bad_se = _band(settings, 16, 8, 55)
     assert bad > 2.0 * ref and bad - ref > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
 
 
-@pytest.mark.parametrize("integrator", [
-    pytest.param({"type": "ray_bundle", "iterations": 24}, id="ray_bundle"),
-    pytest.param({"type": "qmc_lighttrace", "samples": 100000}, id="qmc_lighttrace")])
-@pytest.mark.xfail(strict=True, reason="known defect: the default smooth display (steep off) carries the lit "
-                   "strip's light into the shadowed floor beside it: +588 % (ray_bundle, z +52), +547 % "
-                   "(qmc_lighttrace, z +37)")
-def test_the_default_smooth_display_beside_the_lit_strip(integrator, strip_reference):
+@pytest.mark.xfail(strict=True, reason="known defect: ray_bundle's default smooth display (steep off) carries the "
+                   "lit strip's light into the shadowed floor beside it: +26 % (z +5.9, 8 x 64 spp; +34 %, z +12 at "
+                   "16 x 128 spp; +588 % before the field's limiter)")
+def test_the_default_smooth_display_beside_the_lit_strip(strip_reference):
     ref, ref_se = strip_reference
-    mean, se = _band(dict(integrator, display="smooth"), 16, 8, 55)
+    mean, se = _band({"type": "ray_bundle", "iterations": 24, "display": "smooth"}, 64, 8, 55)
     budget.close(mean, ref, np.hypot(se, ref_se), what="default smooth display beside the strip / path")
 
 
@@ -99,9 +112,10 @@ def test_steep_patches_are_decided_on_a_second_solve(monkeypatch):
 
 
 @pytest.mark.parametrize("display", ["smooth", "baked"])
-@pytest.mark.xfail(strict=True, reason="known defect: the field's planes overshoot below zero beside the lit strip: "
-                   "negative pixels (qmc_lighttrace, 64 spp: smooth 432 of 4096 down to -0.015, baked 521 down "
-                   "to -0.028; a min-max limiter removes them but loses the exact linear fields, docs/solutions.md)")
+@pytest.mark.xfail(strict=True, reason="known defect: the field's corrections toward the patch averages take vertices "
+                   "beside the lit strip below zero: negative pixels (qmc_lighttrace, 64 spp: smooth 431 of 4096 down "
+                   "to -0.009, baked 663 down to -0.023; limited after the last correction there are none, but the "
+                   "caustic of mirror_lit reads +2.2 %, z +7.6: docs/solutions.md)")
 def test_the_displays_show_no_negative_light_beside_the_strip(display):
     scene = mi.load_dict(panel_on_floor(lift=0.05, resolution=64))
     integrator = mi.load_dict({"type": "qmc_lighttrace", "samples": 100000, "display": display})

@@ -23,11 +23,15 @@ smooth display and the exported meshes show the field reconstructed from them:
   corners, beside a shadow) the planes round the bend off and the interpolated patch
   averages drift from the patch values (the image mean -2.6 % in a room lit through its
   ceiling); the corrections bring them back (-0.86 %) and leave a linear field as it
-  is. A vertex value is a fixed linear combination of patch values, so unbiased patch
-  values give unbiased vertex values (no clamping: a plane extrapolated to a border, or
-  the corrections beside a steep drop, can make a vertex negative: one pixel of Mitsuba's
-  Cornell box at -0.0005 with ``qmc_lighttrace``; clamping such vertices at 0 was tried
-  and biased the caustic of the conformance suite's ``mirror_lit`` by +4 %, z +10);
+  is. Before each correction the limiter (:mod:`mi_plugins.solution.limiter`) keeps a
+  vertex its patches surround within their values and any other at or above 0 where
+  they are: a linear field without negative values is untouched, the gross overshoot
+  beside a steep change is cut (a lit strip on a shadowed floor: +547 % -> +6 %), and the
+  corrections take back what it moved where the light is merely noisy. Elsewhere a
+  vertex value is a fixed linear combination of patch values, so unbiased patch values
+  give unbiased vertex values (clamping every vertex at 0 after the corrections was
+  tried and biased the caustic of the conformance suite's ``mirror_lit`` by +4 %, z +10;
+  the corrections can take a vertex beside a steep drop below 0);
 - **interpolation**: a point of a triangle patch takes its barycentric combination of
   the three vertex values, a point of an analytic cell the bilinear one in its (u, v).
 
@@ -43,6 +47,7 @@ import numpy as np
 from mi_plugins.base.arrays import distinct, jit
 from mi_plugins.patches import darkness, setup_cache, tessellation
 from mi_plugins.patches.gaps import mouth_patches
+from mi_plugins.solution import limiter
 
 #: patches whose normals differ by more than this (degrees) at a shared corner keep
 #: vertices of their own
@@ -203,6 +208,9 @@ class PatchField:
         self.vertex_positions[ids] = points          # welded corners coincide
         self._element_incidence = (element_of, ids)
         self._prepare_fit()
+        patch, vertex = self._patch_pairs(element_of, ids)
+        self._limits = limiter.limits(patch, vertex, limiter.surrounded(
+            self.vertex_positions, self.centroids, self.normals, patch, vertex, _tangents))
         # the average over each patch of the interpolated field, a weighted sum of its corners'
         # values: (patch, vertex, weight) per corner, and each vertex's total weight
         corner_patch, corner_weight = self.element_patch[element_of], el["area"][element_of] \
@@ -334,7 +342,8 @@ class PatchField:
 
     def fit(self, values, iterations=CONSERVE_ITERATIONS):
         """Vertex values (V, C) from patch values (K, C) (or (K, ...): trailing axes are
-        channels): the planes, then ``iterations`` corrections (:meth:`conserve`)."""
+        channels): the planes, then ``iterations`` corrections (:meth:`conserve`), each
+        after the limiter (:mod:`mi_plugins.solution.limiter`)."""
         values = np.asarray(values, dtype=np.float64)
         shape = values.shape[1:]
         flat = values.reshape(self.count, -1)
@@ -348,7 +357,9 @@ class PatchField:
             for c in range(flat.shape[1]):    # (the channels: a few)
                 beta = [np.bincount(centre, plane[:, j] * flat[other, c], minlength=self.count) for j in range(3)]
                 out[inner, c] = beta[0][at] + local[:, 0] * beta[1][at] + local[:, 1] * beta[2][at]
-        return self.conserve(out, flat, iterations).reshape((self.vertex_count,) + shape)
+        for _ in range(int(iterations)):       # (the limiter before each correction)
+            out = self.conserve(limiter.limited(out, flat, self._limits), flat, 1)
+        return out.reshape((self.vertex_count,) + shape)
 
     def conserve(self, out, flat, iterations=CONSERVE_ITERATIONS):
         """Vertex values ``out`` (V, C) moved toward patch averages equal to the patch
@@ -384,7 +395,7 @@ class PatchField:
     _BY_ELEMENT = ("corner_count", "kind", "element_patch", "element_normals", "element_shape", "leaf", "vertex_ids")
     _BY_PATCH = ("normals", "areas", "centroids")
     _PATCH_VALUES = (("element_patch", None), ("_pairs", 0), ("_planes", 0), ("_planes", 1), ("_inner", 1),
-                     ("_averages", 0))
+                     ("_averages", 0), ("_limits", 0))
 
     def _renumber(self, order):
         for name in self._BY_ELEMENT:

@@ -19,7 +19,9 @@ Measured on that panel's scene at 64 px (rows 44-47, the shadowed floor beside t
 strip; 8 runs against ``path`` at 8 x 2048 spp): ``ray_bundle`` +588 % (z +52) without,
 +2.0 % (z +0.2) with ``steep=0.5``, every band within |z| 2.0; ``qmc_lighttrace`` at
 100 000 paths +547 % (z +37) without, +11 % (z +0.5) with, but two dim floor rows further
-on -40 % and -62 % (z -3.2, -4.4; without: -18 %, -6 %), not understood yet.
+on -40 % and -62 % (z -3.2, -4.4; without: -18 %, -6 %), not understood yet. (Measured
+before the field's limiter, :mod:`mi_plugins.solution.limiter`, which alone takes the
+floor to +34 % and +6 %.)
 
 **Decided on a second solve.** A test that reads the displayed solution's own values
 follows their noise: a patch whose value came out low has corners far above it and
