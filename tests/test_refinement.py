@@ -222,3 +222,31 @@ def test_previews_show_the_refined_patches(integrator):
     image = np.array(mi.render(_shadow_scene(), integrator=integ, spp=1, seed=budget.seed(32)))
     assert integ.refinements and integ.refinements[0], "nothing split: the test sees no refined table"
     assert len(seen) >= 2 and all(np.isfinite(seen)) and np.isfinite(image).all(), seen
+
+
+def test_against_the_field_a_linear_falloff_splits_nothing_and_a_kink_splits():
+    """Compared with what the smooth field shows in each child (the display modes'
+    refinement), a light that falls off linearly across the floor splits no patch (the
+    field's planes follow it exactly), while a kink in it (the light rising only beyond
+    x = 0) splits the patches along the kink and beside it (whose vertices' planes reach
+    across it), and none further away. Test of the test: compared
+    with the patch's flat value (the gather's refinement) the linear falloff splits."""
+    from mi_plugins.solution.child_field import field_children
+    scene = mi.load_dict({"type": "scene", "s": SHAPES["rectangle"]})
+    table = MeshTable(scene, "test", h=0.6)
+    k = table.front_count
+    # the position of every child's centre: the centre of its uv quadrant (cells of a rectangle)
+    x = np.zeros((k, refinement.CHILDREN))
+    for c, (a, b) in enumerate(((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))):
+        si = table.surface_interaction(mi.UInt32(np.arange(k, dtype=np.uint32)), mi.Point2f(a, b))
+        x[:, c] = np.array(si.p.x)
+    size = np.sqrt(table.areas_np[:k]).max()
+    expected = lambda density: field_children(table, density)
+    falloff = lambda p, c: 1.0 + 0.4 * (x[p, c] + 2.0)
+    assert len(refinement.choose(table, *_measured(table, falloff, 10 ** 6), 0.01, 0.0, 100 * k,
+                                 expected=expected)) == 0
+    assert len(refinement.choose(table, *_measured(table, falloff, 10 ** 6), 0.01, 0.0, 100 * k)) > k // 2
+    kink = lambda p, c: 1.0 + 2.0 * max(x[p, c], 0.0)
+    split = refinement.choose(table, *_measured(table, kink, 10 ** 6), 0.01, 0.0, 100 * k, expected=expected)
+    centre = np.array([x[p, :4].mean() for p in split])
+    assert np.sum(np.abs(centre) < 0.5 * size) >= 4 and np.all(np.abs(centre) < 2.5 * size), (len(split), centre)

@@ -10,6 +10,7 @@ import numpy as np
 from mi_plugins.patches import refinement
 from mi_plugins.patches.refinement import CHILDREN
 
+from mi_plugins.solution.child_field import field_children
 from mi_plugins.solution.patch_light import LUMINANCE, side_values
 from mi_plugins.integrators.qmc_lighttrace.particles import trace_range
 from mi_plugins.integrators.qmc_lighttrace.store import check_memory
@@ -111,7 +112,8 @@ def _refining(integ, scene, table, seed, preview):
         squares += found
         if g < min(REFINE_RANGES, groups - 1):
             split = refinement.choose(table, children.sum(axis=0) @ LUMINANCE, squares, integ.refine_threshold,
-                                      min_size, budget)
+                                      min_size, budget, expected=None if integ.display == "gather"
+                                      else lambda density, table=table: field_children(table, density))
             if len(split):
                 table, origin, which = refinement.refined(table, split)
                 integ.refinements.append(split.tolist())

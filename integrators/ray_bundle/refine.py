@@ -15,6 +15,7 @@ import mitsuba as mi
 from mi_plugins.patches import refinement
 from mi_plugins.base import seeds
 from mi_plugins.solution import patch_light
+from mi_plugins.solution.child_field import field_children
 from mi_plugins.integrators.ray_bundle.transfer import ChainState
 
 #: burn-in of the refined part (its chains start from the pilot's, nearly converged)
@@ -65,4 +66,5 @@ def choose(integ, run, scene, seed):
         sums, squares = sums + more[0], squares + more[1]
     min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
     budget = integ.max_patches or refinement.DEFAULT_BUDGET * table.front_count
-    return refinement.choose(table, sums, squares, integ.refine_threshold, min_size, budget)
+    return refinement.choose(table, sums, squares, integ.refine_threshold, min_size, budget,
+                             expected=lambda density: field_children(table, density))

@@ -1,11 +1,15 @@
-"""Adaptive subdivision: patches split where the light they receive varies.
+"""Adaptive subdivision: patches split where the light they receive varies, or where the
+smooth field shown from them misses how it varies.
 
 A solve measures, for every patch side, what arrives in each of its *children*: the 4
 level-2 sub-triangles of a triangle, the 4 uv quadrants of a cell, the up to 8 octants of
 a cluster's grid cell (:func:`child_index`: the same children ``MeshTable.refined``
 makes). After a stage of the solve, :func:`choose` splits the patches whose children's irradiances
 differ from the patch's beyond their noise together (a chi-square test at :data:`Z`
-sigma) and some child's by more than ``threshold`` of it: the variation of the incoming
+sigma) and some child's by more than ``threshold`` of it (with a display mode: the
+children's irradiances differ from the smooth field's averages over them, what the
+display shows there, so the budget goes to kinks, shadow edges and contact lines that the
+field's planes round off rather than to falloffs they follow): the variation of the incoming
 radiance inside the patch, with each child's standard error estimated from its deposits
 (the stochastic-iteration paper's remedy:
 "much more robust than methods which examine the radiosity gradient"; it finds shadow
@@ -121,7 +125,7 @@ def patch_sizes(table):
     return np.where(counts > 1, table.h / 2.0 ** cluster_depth, size)
 
 
-def choose(table, sums, squares, threshold, min_size, budget):
+def choose(table, sums, squares, threshold, min_size, budget, expected=None):
     """The front patches to split: ``sums`` (K, 2, 8) what each child of each patch side
     received (luminance, any unit: deposits or irradiance sums), ``squares`` (K, 2, 8) the
     sums of the squares of the deposits behind them (under a uniform density, a child's
@@ -133,13 +137,19 @@ def choose(table, sums, squares, threshold, min_size, budget):
     some child by more than ``threshold`` of it. The varying patches split in the order of
     the error their flat value makes (the area-weighted spread of the children's densities
     about the patch's, less its expected noise: what splitting removes), at most as many
-    as keep the patches within ``budget`` (a split adds up to 3 or 7)."""
+    as keep the patches within ``budget`` (a split adds up to 3 or 7). ``expected``: given,
+    the children are compared with ``expected(density)`` (K, 2, 8) of the patch sides'
+    densities (K, 2) instead of the patch's one density: with the smooth field's averages
+    over them (:func:`mi_plugins.solution.child_field.field_children`), a patch splits
+    where the display is wrong, not where the light merely varies in a way the field's
+    planes follow (a linear falloff splits nothing)."""
     areas = child_areas(table)[:, None, :]                          # (K, 1, 8)
     present = areas > 0
     total_area = np.maximum(areas.sum(axis=2, keepdims=True), 1e-300)
     density = np.where(present, sums / np.where(present, areas, 1.0), 0.0)
     mean = sums.sum(axis=2, keepdims=True) / total_area
-    deviation = np.abs(density - mean)
+    # (against the field: what the smooth display shows in each child, not the flat value)
+    deviation = np.abs(density - (np.where(present, expected(mean[:, :, 0]), 0.0) if expected else mean))
     # a child's variance if the patch received a uniform density (the null hypothesis): its
     # area's share of the squares of all the patch's deposits (an empty child has one too)
     pooled = np.maximum(squares, 0.0).sum(axis=2, keepdims=True) * (areas / total_area)
