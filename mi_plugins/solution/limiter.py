@@ -34,22 +34,27 @@ def surrounded(positions, centroids, normals, patch, vertex, tangents):
     normal ``normals`` (per patch): every gap between consecutive directions to them is
     under half a turn. ``tangents(normals)``: two unit tangents per normal."""
     count = len(positions)
+    counts = np.bincount(vertex, minlength=count)
+    keep = counts[vertex] >= 3                  # (fewer than 3 patches surround nothing)
+    patch, vertex = patch[keep], vertex[keep]
+    out = np.zeros(count, bool)
+    if not len(vertex):
+        return out
     mean = np.stack([np.bincount(vertex, normals[patch][:, k], minlength=count) for k in range(3)], axis=1)
     t1, t2 = tangents(mean)
     offset = centroids[patch] - positions[vertex]
     angle = np.arctan2(np.einsum("ij,ij->i", offset, t2[vertex]), np.einsum("ij,ij->i", offset, t1[vertex]))
-    order = np.lexsort((angle, vertex))
+    # by vertex, then by angle: one sort of the vertex plus the angle's share of a turn
+    order = np.argsort(vertex + (angle + np.pi) / (2.0 * np.pi + 1e-9), kind="stable")
     v, a = vertex[order], angle[order]
-    first = np.r_[True, v[1:] != v[:-1]]
-    last = np.r_[v[1:] != v[:-1], True]
+    starts = np.flatnonzero(np.r_[True, v[1:] != v[:-1]])
+    ends = np.r_[starts[1:], len(v)] - 1
     gap = np.empty(len(a))
     gap[:-1] = a[1:] - a[:-1]
     # the gap after a vertex's last direction wraps to its first
-    gap[last] = a[first] + 2.0 * np.pi - a[last]
-    widest = np.zeros(count)
-    np.maximum.at(widest, v, gap)
-    counts = np.bincount(vertex, minlength=count)
-    return (counts >= 3) & (widest < np.pi - MARGIN)
+    gap[ends] = a[starts] + 2.0 * np.pi - a[ends]
+    out[v[starts]] = np.maximum.reduceat(gap, starts) < np.pi - MARGIN
+    return out
 
 
 def limits(patch, vertex, inside):

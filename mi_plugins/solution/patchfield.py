@@ -92,23 +92,27 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
     keys -= keys.min(axis=0)
     span = keys.max(axis=0) + 1
     if float(np.prod(span.astype(np.float64))) < 2.0 ** 62:    # one integer per cell: a flat sort
-        _, group = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_inverse=True)
+        _, first, group = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2],
+                                    return_index=True, return_inverse=True)
     else:
-        _, group = np.unique(keys, axis=0, return_inverse=True)
+        _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     group = group.ravel()
     vertex = np.full(n, -1, np.int64)
     cos_limit, next_id = np.cos(np.radians(angle)), 0
+    size = len(first)
+    left, groups = np.arange(n), np.arange(size)     # (the first round: every corner, every group)
     while True:          # a few rounds: one per distinct normal at a point
-        left = np.flatnonzero(vertex < 0)
-        if not len(left):
-            return vertex
-        groups, first = np.unique(group[left], return_index=True)
-        leader = np.full(group.max() + 1, -1, np.int64)
+        if next_id:
+            left = np.flatnonzero(vertex < 0)
+            if not len(left):
+                return vertex
+            groups, first = np.unique(group[left], return_index=True)
+        leader = np.full(size, -1, np.int64)
         leader[groups] = left[first]
         lead = leader[group[left]]
         join = np.einsum("ij,ij->i", normals[left], normals[lead]) >= cos_limit
         join |= left == lead
-        ids = np.full(group.max() + 1, -1, np.int64)
+        ids = np.full(size, -1, np.int64)
         ids[groups] = next_id + np.arange(len(groups))
         vertex[left[join]] = ids[group[left[join]]]
         next_id += len(groups)
