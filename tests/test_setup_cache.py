@@ -146,6 +146,15 @@ def test_off_writes_nothing(tmp_path, monkeypatch):
     assert not list(tmp_path.rglob("*.npz"))
 
 
+@pytest.mark.parametrize("value", ["0", "false", "No"])
+def test_a_switch_instead_of_a_folder_is_refused(value, monkeypatch):
+    """``MI_PLUGINS_SETUP_CACHE=0`` (or another switch word) is refused by name instead of
+    making a folder '0' in the working directory; ``off`` turns the cache off."""
+    monkeypatch.setenv(setup_cache.ENV, value)
+    with pytest.raises(ValueError, match="MI_PLUGINS_SETUP_CACHE=.*'off'"):
+        setup_cache.directory()
+
+
 def test_another_process_reuses_the_setup(cache):
     code = ("import sys, time, numpy as np, mitsuba as mi; mi.set_variant('llvm_ad_rgb'); import mi_plugins\n"
             "sys.path.insert(0, %r)\nfrom test_setup_cache import scene_dict, INTEGRATORS\n"

@@ -29,11 +29,18 @@ from mi_plugins.base import fingerprint
 ENV = "MI_PLUGINS_SETUP_CACHE"
 
 
+#: values of ``$MI_PLUGINS_SETUP_CACHE`` that look like a switch, refused rather than
+#: taken as a folder of that name in the working directory
+_SWITCHES = ("0", "1", "false", "true", "no", "yes", "none", "disable", "disabled", "on")
+
+
 def directory():
     """The cache folder, or None where ``$MI_PLUGINS_SETUP_CACHE`` is ``off``."""
     chosen = os.environ.get(ENV, "").strip()
     if chosen.lower() == "off":
         return None
+    if chosen.lower() in _SWITCHES:
+        raise ValueError("$%s=%r: expected a folder for the setup cache, or 'off' to turn it off" % (ENV, chosen))
     if chosen:
         return chosen
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
