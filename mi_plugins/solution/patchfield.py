@@ -81,12 +81,13 @@ def _analytic_corners(kind, cells, bounds, frame):
 
 
 def weld(points, normals, scale, angle=WELD_ANGLE):
-    """Vertex index (N,) of each corner ``points`` (N, 3) with patch normal ``normals``
-    (N, 3): corners within WELD_TOLERANCE x ``scale`` share a vertex when their normals
-    are within ``angle`` degrees of the first normal of the group (greedy rounds)."""
+    """(vertex index (N,), the first corner of that vertex (N,)) of each corner ``points``
+    (N, 3) with patch normal ``normals`` (N, 3): corners within WELD_TOLERANCE x ``scale``
+    share a vertex when their normals are within ``angle`` degrees of the first normal of
+    the group (greedy rounds; a vertex's first corner leads it)."""
     n = len(points)
     if not n:
-        return np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     cell = max(float(scale), 1e-30) * WELD_TOLERANCE * 4
     keys = np.round(points / cell).astype(np.int64)
     keys -= keys.min(axis=0)
@@ -97,7 +98,7 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
     else:
         _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     group = group.ravel()
-    vertex = np.full(n, -1, np.int64)
+    vertex, first_corner = np.full(n, -1, np.int64), np.zeros(n, np.int64)
     cos_limit, next_id = np.cos(np.radians(angle)), 0
     size = len(first)
     left, groups = np.arange(n), np.arange(size)     # (the first round: every corner, every group)
@@ -105,7 +106,7 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         if next_id:
             left = np.flatnonzero(vertex < 0)
             if not len(left):
-                return vertex
+                return vertex, first_corner
             groups, first = np.unique(group[left], return_index=True)
         leader = np.full(size, -1, np.int64)
         leader[groups] = left[first]
@@ -115,20 +116,23 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         ids = np.full(size, -1, np.int64)
         ids[groups] = next_id + np.arange(len(groups))
         vertex[left[join]] = ids[group[left[join]]]
+        first_corner[left[join]] = lead[join]
         next_id += len(groups)
 
 
-def separate(scene, vertex, centres, normals, scale):
+def separate(scene, vertex, centres, normals, scale, lead=None):
     """``vertex`` (N,) with the corners whose element a surface standing on the patches
     separates from the vertex's first element given a vertex of their own: the segment
     between the two elements' centres, just off their surface, meets a surface steeper
     than 30 degrees to them (a panel standing on a floor whose elements run under it:
     the floor's field on either side is fitted from that side's patches, instead of
-    carrying the lit side's light across the panel's line)."""
+    carrying the lit side's light across the panel's line). ``lead``: each corner's
+    vertex's first corner, as :func:`weld` gives it (else found here)."""
     n = len(vertex)
     if not n:
         return vertex
-    lead = np.unique(vertex, return_index=True)[1][vertex]      # each vertex's first corner (ids 0 .. V-1)
+    if lead is None:
+        lead = np.unique(vertex, return_index=True)[1][vertex]      # each vertex's first corner (ids 0 .. V-1)
     eps = 1e-5 * (1.0 + float(scale))
     apart = np.array(darkness.crossed(scene, jit(mi.Point3f, *(centres + normals * eps).T),
                                       jit(mi.Point3f, *(centres[lead] + normals[lead] * eps).T),
@@ -200,8 +204,8 @@ class PatchField:
         points = corners[used]
         del corners
         extent = np.ptp(points, axis=0).max() if len(points) else 1.0
-        ids = weld(points, self.element_normals[element_of], extent)
-        ids = separate(table.scene, ids, el["centre"][element_of], self.element_normals[element_of], extent)
+        ids, lead = weld(points, self.element_normals[element_of], extent)
+        ids = separate(table.scene, ids, el["centre"][element_of], self.element_normals[element_of], extent, lead)
         mouth = mouth_patches(table)[self.element_patch[element_of]]      # (a gap's mouth: vertices of its own)
         if mouth.any():
             ids = np.unique(ids * 2 + mouth, return_inverse=True)[1].ravel()
