@@ -241,12 +241,11 @@ def test_against_the_field_a_linear_falloff_splits_nothing_and_a_kink_splits():
         si = table.surface_interaction(mi.UInt32(np.arange(k, dtype=np.uint32)), mi.Point2f(a, b))
         x[:, c] = np.array(si.p.x)
     size = np.sqrt(table.areas_np[:k]).max()
-    expected = lambda density: field_children(table, density)
     falloff = lambda p, c: 1.0 + 0.4 * (x[p, c] + 2.0)
     assert len(refinement.choose(table, *_measured(table, falloff, 10 ** 6), 0.01, 0.0, 100 * k,
-                                 expected=expected)) == 0
+                                 expected=field_children)) == 0
     assert len(refinement.choose(table, *_measured(table, falloff, 10 ** 6), 0.01, 0.0, 100 * k)) > k // 2
     kink = lambda p, c: 1.0 + 2.0 * max(x[p, c], 0.0)
-    split = refinement.choose(table, *_measured(table, kink, 10 ** 6), 0.01, 0.0, 100 * k, expected=expected)
+    split = refinement.choose(table, *_measured(table, kink, 10 ** 6), 0.01, 0.0, 100 * k, expected=field_children)
     centre = np.array([x[p, :4].mean() for p in split])
     assert np.sum(np.abs(centre) < 0.5 * size) >= 4 and np.all(np.abs(centre) < 2.5 * size), (len(split), centre)

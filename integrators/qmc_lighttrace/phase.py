@@ -112,8 +112,7 @@ def _refining(integ, scene, table, seed, preview):
         squares += found
         if g < min(REFINE_RANGES, groups - 1):
             split = refinement.choose(table, children.sum(axis=0) @ LUMINANCE, squares, integ.refine_threshold,
-                                      min_size, budget, expected=None if integ.display == "gather"
-                                      else lambda density, table=table: field_children(table, density))
+                                      min_size, budget, expected=None if integ.display == "gather" else field_children)
             if len(split):
                 table, origin, which = refinement.refined(table, split)
                 integ.refinements.append(split.tolist())

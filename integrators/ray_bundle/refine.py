@@ -66,5 +66,4 @@ def choose(integ, run, scene, seed):
         sums, squares = sums + more[0], squares + more[1]
     min_size = integ.min_patch_size if integ.min_patch_size is not None else table.h / 4.0
     budget = integ.max_patches or refinement.DEFAULT_BUDGET * table.front_count
-    return refinement.choose(table, sums, squares, integ.refine_threshold, min_size, budget,
-                             expected=lambda density: field_children(table, density))
+    return refinement.choose(table, sums, squares, integ.refine_threshold, min_size, budget, expected=field_children)

@@ -138,8 +138,8 @@ def choose(table, sums, squares, threshold, min_size, budget, expected=None):
     the error their flat value makes (the area-weighted spread of the children's densities
     about the patch's, less its expected noise: what splitting removes), at most as many
     as keep the patches within ``budget`` (a split adds up to 3 or 7). ``expected``: given,
-    the children are compared with ``expected(density)`` (K, 2, 8) of the patch sides'
-    densities (K, 2) instead of the patch's one density: with the smooth field's averages
+    the children are compared with ``expected(table, density)`` (K, 2, 8) of the patch
+    sides' densities (K, 2) instead of the patch's one density: with the smooth field's averages
     over them (:func:`mi_plugins.solution.child_field.field_children`), a patch splits
     where the display is wrong, not where the light merely varies in a way the field's
     planes follow (a linear falloff splits nothing)."""
@@ -149,7 +149,7 @@ def choose(table, sums, squares, threshold, min_size, budget, expected=None):
     density = np.where(present, sums / np.where(present, areas, 1.0), 0.0)
     mean = sums.sum(axis=2, keepdims=True) / total_area
     # (against the field: what the smooth display shows in each child, not the flat value)
-    deviation = np.abs(density - (np.where(present, expected(mean[:, :, 0]), 0.0) if expected else mean))
+    deviation = np.abs(density - (np.where(present, expected(table, mean[:, :, 0]), 0.0) if expected else mean))
     # a child's variance if the patch received a uniform density (the null hypothesis): its
     # area's share of the squares of all the patch's deposits (an empty child has one too)
     pooled = np.maximum(squares, 0.0).sum(axis=2, keepdims=True) * (areas / total_area)

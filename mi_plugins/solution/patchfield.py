@@ -120,19 +120,17 @@ def weld(points, normals, scale, angle=WELD_ANGLE):
         next_id += len(groups)
 
 
-def separate(scene, vertex, centres, normals, scale, lead=None):
+def separate(scene, vertex, centres, normals, scale, lead):
     """``vertex`` (N,) with the corners whose element a surface standing on the patches
     separates from the vertex's first element given a vertex of their own: the segment
     between the two elements' centres, just off their surface, meets a surface steeper
     than 30 degrees to them (a panel standing on a floor whose elements run under it:
     the floor's field on either side is fitted from that side's patches, instead of
     carrying the lit side's light across the panel's line). ``lead``: each corner's
-    vertex's first corner, as :func:`weld` gives it (else found here)."""
+    vertex's first corner, as :func:`weld` gives it."""
     n = len(vertex)
     if not n:
         return vertex
-    if lead is None:
-        lead = np.unique(vertex, return_index=True)[1][vertex]      # each vertex's first corner (ids 0 .. V-1)
     eps = 1e-5 * (1.0 + float(scale))
     apart = np.array(darkness.crossed(scene, jit(mi.Point3f, *(centres + normals * eps).T),
                                       jit(mi.Point3f, *(centres[lead] + normals[lead] * eps).T),
