@@ -30,14 +30,11 @@ BLACK_LIMIT = runner.BLACK_LIMIT
 SEED = 1000
 
 #: combinations that FAIL on the current code: {(scene, integrator): measured defect}
-_BAKED_SPOT = ("the baked display interpolates vertex values fitted to the patch values (the direct light "
-               "included): across the spot light's cone edge the fit overshoots, and blocks path sees black "
-               "read a little light (pixels from -0.0014 to +0.0003 where path gives 0); ")
 KNOWN_DEFECTS = {
-    ("spot_light", "ray_bundle(display=baked)"): _BAKED_SPOT + "5 of 48 block tests fail, the worst t 28.6 "
-                                                               "(5.6e-05 against 0); the image mean +0.63 %, z +3.7",
-    ("spot_light", "qmc_lighttrace(display=baked)"): _BAKED_SPOT + "10 of 48 block tests fail, the worst t 34.3 "
-                                                                   "(5.7e-05 against 0); the image mean +0.10 %",
+    ("spot_light", "qmc_lighttrace(display=baked)"):
+        "the baked display interpolates vertex values fitted to the patch values (the direct light included): "
+        "across the spot light's cone edge the fit overshoots, and blocks that path sees nearly black read more "
+        "light: 2 of 48 block tests fail, the worst t 7.9 (0.00022 against 0.00013); the image mean +0.35 %, z +2.95",
 }
 
 SCENES = list(conformance.scenes())

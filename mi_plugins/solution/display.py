@@ -81,20 +81,32 @@ class ReadTables:
 
 class SmoothTables:
     """The read tables interpolated from their vertex values ``values`` (Color3f of the
-    vertex tables (T, V, 2, 3))."""
+    vertex tables (T, V, 2, 3)); ``flat``: the same tables' patch values (a
+    :class:`~mi_plugins.solution.gather.FlatTables`), read instead of the interpolation
+    in a colour channel where it is negative and the patch's own value is not.
 
-    def __init__(self, table, field, values):
+    The field's corrections toward the patch averages can take a vertex beside a bright
+    edge below zero (a dark patch under a lit strip, a small refined patch beside a large
+    bright one): light that does not exist, down to -0.0036 on a floor whose truth is
+    +0.0014. The patch's value is its own estimate of the average there; a negative
+    patch value (negative simulated emission) is the solution's, and stays."""
+
+    def __init__(self, table, field, values, flat=None):
         self.table, self.field = table, field
         self.vertices = max(field.vertex_count, 1)
-        self.values = values
+        self.values, self.flat = values, flat
 
     def __call__(self, hit, index, active):
         _, element, mesh, a, b = self.table.locate(hit, active)
         ids, w = self.field.weights(element, mesh, a, b, active)
         base = index * self.vertices
         side = side_of(hit)
-        return sum((w[k] * dr.gather(mi.Color3f, self.values, (base + ids[k]) * 2 + side, active)
-                    for k in range(4)), mi.Color3f(0.0))
+        value = sum((w[k] * dr.gather(mi.Color3f, self.values, (base + ids[k]) * 2 + side, active)
+                     for k in range(4)), mi.Color3f(0.0))
+        if self.flat is None:
+            return value
+        own = self.flat(hit, index, active & dr.any(value < 0))
+        return dr.select((value < 0) & (own >= 0), own, value)
 
 
 class View:
@@ -117,8 +129,9 @@ class View:
         t = solution.tables.shape[0]
         self.read = ReadTables(None if solution.unbounded else t, solution.direct_in_tables)
         self.adds_direct = not solution.direct_in_tables
+        flat = FlatTables(table, solution.array("tables", lambda: _color(solution.tables)))
         if mode == "patches":
-            self.stored = FlatTables(table, solution.array("tables", lambda: _color(solution.tables)))
+            self.stored = flat
             # the patches' direct light, where the tables do not carry it already (else none:
             # a gather from a stand-in array read past its end, NaN and 1e35 pixels)
             if self.adds_direct and solution.direct is None:
@@ -127,10 +140,11 @@ class View:
             self.direct = solution.array("direct", lambda: _color(solution.direct)) if self.adds_direct else None
         else:
             self.stored = SmoothTables(table, solution.field, solution.array(
-                "vertex tables", lambda: _color(solution.vertex_values("tables"))))
+                "vertex tables", lambda: _color(solution.vertex_values("tables"))), flat)
         if mode == "baked":
             self.baked = SmoothTables(table, solution.field, solution.array("vertex reflected", lambda: _color(
-                solution.vertex_values("radiance") - solution.vertex_values("emission"))))
+                solution.vertex_values("radiance") - solution.vertex_values("emission"))), FlatTables(
+                table, solution.array("reflected", lambda: _color(solution.radiance - solution.emission))))
 
     def visible(self, scene, si, bsdf, budget, active, rng, light_sample):
         """What purely diffuse visible points ``si`` reflect toward the eye (their emission
