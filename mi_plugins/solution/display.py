@@ -97,7 +97,7 @@ class SmoothTables:
         self.values, self.flat = values, flat
 
     def __call__(self, hit, index, active):
-        _, element, mesh, a, b = self.table.locate(hit, active)
+        patch, element, mesh, a, b = self.table.locate(hit, active)
         ids, w = self.field.weights(element, mesh, a, b, active)
         base = index * self.vertices
         side = side_of(hit)
@@ -105,7 +105,7 @@ class SmoothTables:
                      for k in range(4)), mi.Color3f(0.0))
         if self.flat is None:
             return value
-        own = self.flat(hit, index, active & dr.any(value < 0))
+        own = self.flat.at(patch * 2 + side, index, active & dr.any(value < 0))
         return dr.select((value < 0) & (own >= 0), own, value)
 
 

@@ -61,8 +61,11 @@ class FlatTables:
 
     def __call__(self, hit, index, active):
         """The irradiance of table ``index`` at hits ``hit`` (diffuse patch sides)."""
-        stride = 2 * self.table.front_count
-        return dr.gather(mi.Color3f, self.tables, index * stride + patch_side(self.table, hit), active)
+        return self.at(patch_side(self.table, hit), index, active)
+
+    def at(self, side, index, active):
+        """The irradiance of table ``index`` on patch sides ``side`` (2 x patch + side)."""
+        return dr.gather(mi.Color3f, self.tables, index * (2 * self.table.front_count) + side, active)
 
 
 class CameraPaths:
