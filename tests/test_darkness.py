@@ -202,6 +202,16 @@ def test_the_light_behind_a_panel_does_not_leak_under_it(monkeypatch):
     assert bad - ref > 4 * np.hypot(bad_se, ref_se) and bad > 1.08 * ref, (bad, ref, bad_se, ref_se)
 
 
+def without_the_patch_fallback(patch):
+    """With ``patch`` (a monkeypatch), the smooth and baked displays show the interpolated
+    field as it is, negative values included (no fallback to the patch's own value in
+    ``display.SmoothTables``): for the tests of the tests."""
+    from mi_plugins.solution import display
+    original = display.SmoothTables.__init__
+    patch.setattr(display.SmoothTables, "__init__",
+                  lambda self, table, field, values, flat=None: original(self, table, field, values))
+
+
 @pytest.mark.parametrize("integrator", ["qmc_lighttrace", "ray_bundle"])
 def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     """The smooth field's vertices on the panel's line are not shared by the floor's
@@ -214,7 +224,7 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     (display.SmoothTables; with it the row still reads -31 %, -2.7 standard errors)."""
     from mi_plugins.base import queries
     from mi_plugins.patches import build, meshtable, tessellation
-    from mi_plugins.solution import display, patchfield
+    from mi_plugins.solution import patchfield
     scene = panel_on_floor()
     foot = np.s_[10:11, 4:12]          # the floor along the panel's foot, in front of it (16 px)
     ref, ref_se = _mean_and_se(scene, {"type": "path"}, 1024, 8, 54, foot)
@@ -225,9 +235,7 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     build._LAST.clear()
     with monkeypatch.context() as patch:
         patch.setattr(patchfield, "separate", lambda scene, vertex, *a: vertex)
-        original = display.SmoothTables.__init__
-        patch.setattr(display.SmoothTables, "__init__",
-                      lambda self, table, field, values, flat=None: original(self, table, field, values))
+        without_the_patch_fallback(patch)
         bad, bad_se = _mean_and_se(scene, settings, 16, 8, 55, foot)
     build._LAST.clear()
     assert abs(bad - ref) > 4 * np.hypot(bad_se, ref_se), (bad, ref, bad_se, ref_se)
