@@ -10,6 +10,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base import queries
+
 #: camera paths through specular chains play Russian roulette after this many bounces
 #: (survival probability min(max throughput, 0.95), so perfect mirrors terminate too)
 RR_DEPTH = 5
@@ -81,7 +83,8 @@ class CameraPass:
     ``sampler`` (a seeded clone of the sensor's sampler). ``ray``, ``weight`` (the
     sensor's importance weight), ``pos`` (film position to splat at), ``pixel`` (flat
     index of the sample's pixel in the crop window), ``sampler`` (draw further numbers
-    from it), ``count`` (lanes: ``per_pixel`` consecutive lanes per pixel of the
+    from it), ``independent`` (it is Mitsuba's independent sampler, which stratifies
+    nothing), ``count`` (lanes: ``per_pixel`` consecutive lanes per pixel of the
     ``grid_width`` x ``grid_height`` grid, the crop window plus the filter's border when
     the film samples it), ``grid_pixel`` (the lane's pixel in that grid), ``box`` (a box
     filter: ``pos`` is the pixel), ``film_rays`` (the sensor's rays follow the film
@@ -115,6 +118,7 @@ class CameraPass:
         self.pos = mi.Vector2f(pos) if self.box else pos_f
         self.sensor = sensor
         self.sampler = sampler
+        self.independent = queries.plugin_name(sampler) in ("independent", "IndependentSampler")
         self.count = count
         self.per_pixel = int(per_pixel)
         self.grid_pixel = idx            # the lane's pixel in the grid (with border), row by row

@@ -28,11 +28,12 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.base.arrays import jit
-from mi_plugins.base import sequences, seeds
+from mi_plugins.base import seeds
 from mi_plugins.render.camera import emission_edges, lattice_rays, seen_emission
 from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
-from mi_plugins.solution.gather import CameraPaths, FlatTables
+from mi_plugins.render.pass_numbers import pass_numbers
+from mi_plugins.solution.gather import CameraPaths, FlatTables, draw_numbers
 from mi_plugins.solution.surfaces import patch_side
 from mi_plugins.solution.surfaces import Surfaces, reflectance_toward, side_of
 from mi_plugins.light.direct import direct_light, needs_bsdf_sample
@@ -146,10 +147,11 @@ class View:
                 solution.vertex_values("radiance") - solution.vertex_values("emission"))), FlatTables(
                 table, solution.array("reflected", lambda: _color(solution.radiance - solution.emission))))
 
-    def visible(self, scene, si, bsdf, budget, active, rng, light_sample):
+    def visible(self, scene, si, bsdf, budget, active, numbers):
         """What purely diffuse visible points ``si`` reflect toward the eye (their emission
         comes with the camera path); ``budget``: the segments the path may still add;
-        ``light_sample``: the numbers of the light sample (:func:`light_samples`)."""
+        ``numbers``: what draws the light sample and the BSDF sample
+        (``mi_plugins.render.pass_numbers``)."""
         f = reflectance_toward(bsdf, si, active)
         if self.mode == "baked":
             return self.baked(si, mi.UInt32(0), active)
@@ -161,39 +163,34 @@ class View:
             return f * irradiance
         value = f * irradiance
         if self.adds_direct:       # a light sample, and near emitters a BSDF sample too (MIS)
-            value += direct_light(scene, si, bsdf, light_sample, active,
-                                  (rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32())),
+            light_sample = numbers.next_2d()
+            value += direct_light(scene, si, bsdf, light_sample, active, (numbers.next_1d(), numbers.next_2d()),
                                   mis=needs_bsdf_sample(scene, si, bsdf))
         return value
 
 
-def light_samples(cam, seed, k):
-    """The light sample's numbers of camera pass ``k``'s samples: point k per_pixel + j of
-    Sobol's first two dimensions (a (0, 2)-sequence) for the j-th sample of a pixel,
-    Owen-scrambled per pixel (``seed``: the render's stream), so that the light samples of
-    a pixel over all passes stratify the square, whichever sampler the sensor has (its
-    own numbers draw the film position). The penumbrae and the area lights' noise of the
-    direct light fall faster than with independent numbers."""
-    per_pixel = dr.opaque(mi.UInt32, cam.per_pixel)     # opaque: one kernel for every camera sample count
-    index = dr.opaque(mi.UInt32, int(k) * cam.per_pixel) + dr.arange(mi.UInt32, cam.count) % per_pixel
-    key = sequences.hash32(dr.opaque(mi.UInt32, seed), cam.grid_pixel)
-    return mi.Point2f(*(sequences.sample("sobol", index, d, scramble=True, seed=key) for d in (0, 1)))
-
-
-def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes):
+def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes, numbers=None):
     """The gather of ``qmc_gather`` at the visible points of ``lanes`` only (the points the
     display does not read: glossy, mixed, bump-mapped), run on those lanes alone: their
     rays (``chain.ray``) found again there, so that no surface interaction of every lane
-    is ever stored."""
-    dr.eval(chain.ray, used, lanes)
+    is ever stored. ``numbers``: what draws the gather's numbers for every lane (a camera
+    pass's, ``mi_plugins.render.pass_numbers``), else a stream of ``seed``."""
+    # a sampler's numbers are drawn for every lane, the Sobol points of the gathering lanes alone
+    drawn = draw_numbers(numbers, gather_samples) if numbers is not None and not hasattr(numbers, "subset") else None
+    dr.eval(chain.ray, used, lanes, drawn)
     index = dr.compress(lanes)
     total = dr.zeros(mi.Color3f, dr.width(lanes))
     if dr.width(index) == 0:
         return total
+    if drawn is not None:
+        drawn = [dr.gather(mi.Point2f, drawn[0], index)] + [
+            (dr.gather(mi.Float, u1, index), dr.gather(mi.Point2f, u2, index)) for u1, u2 in drawn[1:]]
+    elif numbers is not None:
+        drawn = draw_numbers(numbers.subset(index), gather_samples)
     ray = dr.gather(mi.Ray3f, chain.ray, index)
     at = paths.scene.ray_intersect(ray)
     light, gathered = paths.gather(None, seed, gather_samples, at, at.bsdf(ray), dr.gather(mi.UInt32, used, index),
-                                   dr.full(mi.Bool, True, dr.width(index)))
+                                   dr.full(mi.Bool, True, dr.width(index)), drawn)
     dr.scatter(total, light + gathered, index)
     return total
 
@@ -311,14 +308,13 @@ def render(frame, view, max_depth, mirror_depth, hide_emitters, gather_samples, 
         seed = seeds.stream(frame.seed, "display", k)
         chain, si, bsdf, used, active = paths.visible_points(cam, seed, evaluate=False)
         diffuse = view.surfaces.readable(si, active)       # (elsewhere: gathered)
-        rng = seeds.pcg(cam.count, seed, "camera_path", 2)
-        value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, rng,
-                             light_samples(cam, seeds.stream(frame.seed, "display"), k))
+        numbers = pass_numbers(cam, seeds.stream(frame.seed, "display"), k)
+        value = view.visible(scene, si, bsdf, paths.depth - mi.Int32(used), diffuse, numbers)
         if residual > 0:
             value = with_residual(paths, seeds.stream(frame.seed, "residual", k), gather_samples, chain, used,
                                   diffuse, value, residual)
         if not view.all_diffuse:     # (purely diffuse surfaces, no gap's mouth: nothing to gather)
-            value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse)
+            value += gather_elsewhere(paths, seed, gather_samples, chain, used, active & ~diffuse, numbers)
         value = chain.emission + chain.throughput * value
         value = with_edges(frame, cam, chain, edges, value, seed)
         frame.put_camera(cam, value, coverage=coverage(scene, chain.surface, hide_emitters))

@@ -68,6 +68,13 @@ class FlatTables:
         return dr.gather(mi.Color3f, self.tables, index * (2 * self.table.front_count) + side, active)
 
 
+def draw_numbers(sampler, gather_samples, active=True):
+    """The numbers of a gather from ``sampler`` (a camera pass's): the light sample's
+    Point2f, then (Float, Point2f) for each of the ``gather_samples`` BSDF samples."""
+    return [sampler.next_2d(active)] + [(sampler.next_1d(active), sampler.next_2d(active))
+                                        for _ in range(int(gather_samples))]
+
+
 class CameraPaths:
     """Camera paths of one render: ``stored`` (a reader of the stored irradiance, e.g.
     :class:`FlatTables`), ``layers`` (``qmc_store.Layers``: which table a path may read),
@@ -103,26 +110,27 @@ class CameraPaths:
         light, gathered = self.gather(cam, seed, gather_samples, si, bsdf, used, active)
         return chain, si, light, gathered
 
-    def gather(self, cam, seed, gather_samples, si, bsdf, used, active, sampler=None):
+    def gather(self, cam, seed, gather_samples, si, bsdf, used, active, drawn=None):
         """(light, gathered) at visible points ``si`` (lanes ``active``) of camera pass
-        ``cam`` (None: lanes of their own, numbers from ``seed``'s stream instead of the
-        camera sampler); the SR gather samples of an eye ray are SR consecutive lanes of
-        one loop."""
+        ``cam`` (None: lanes of their own, numbers from ``drawn`` where given (the light
+        sample's Point2f, then (Float, Point2f) per gather sample, e.g.
+        :func:`draw_numbers`), else from ``seed``'s stream instead of the camera sampler);
+        the SR gather samples of an eye ray are SR consecutive lanes of one loop."""
         sr, n = int(gather_samples), dr.width(active)
-        own = seeds.pcg(n, seed, "camera_path", 3) if cam is None else None
-        draw_1d = cam.sampler.next_1d if cam is not None else lambda active: own.next_float32(active)
-        draw_2d = cam.sampler.next_2d if cam is not None else \
-            lambda active: mi.Point2f(own.next_float32(active), own.next_float32(active))
-        light = light_sample(self.scene, si, bsdf, draw_2d(active), active, float(sr))
-        # the gather samples' numbers from the camera sampler, lane i * SR + j for sample j of eye lane i
+        if cam is not None:
+            drawn = draw_numbers(cam.sampler, sr, active)
+            cam.sampler.schedule_state()
+        elif drawn is None:
+            own = seeds.pcg(n, seed, "camera_path", 3)
+            u = lambda: own.next_float32(active)
+            drawn = [mi.Point2f(u(), u())] + [(u(), mi.Point2f(u(), u())) for _ in range(sr)]
+        light = light_sample(self.scene, si, bsdf, drawn[0], active, float(sr))
+        # the gather samples' numbers, lane i * SR + j for sample j of eye lane i
         numbers = [dr.zeros(mi.Float, n * sr) for _ in range(3)]
         slots = dr.arange(mi.UInt32, n) * sr
-        for j in range(sr):        # SR draws of the sampler (a small constant)
-            u1, u2 = draw_1d(active), draw_2d(active)
+        for j, (u1, u2) in enumerate(drawn[1:]):        # SR samples (a small constant)
             for target, value in zip(numbers, (u1, u2.x, u2.y)):
                 dr.scatter(target, value, slots + j)
-        if cam is not None:
-            cam.sampler.schedule_state()
         dr.eval(light, numbers)
         eye = dr.arange(mi.UInt32, n * sr) // sr
         at, go = dr.gather(mi.SurfaceInteraction3f, si, eye), dr.gather(mi.Bool, active, eye)
