@@ -3,7 +3,9 @@ with the best of Mitsuba's samplers, measured in the same run (docs/interiors.md
 
 Methods: `path` (max_depth -1) with each of Mitsuba's samplers (independent, stratified,
 multijitter, orthogonal, ldsampler); `qmc_lighttrace` and `ray_bundle`, each with its
-gather and with ``display='smooth'``, at their defaults (the scene's independent sampler).
+gather and with ``display='smooth'``, at their defaults (the scene's independent sampler),
+and the same four with the scene on the ``ldsampler`` (suffix ``_ld``), whose numbers the
+displays and gathers then draw after the film position.
 The budget is `mi.render`'s spp, doubled from 1 until a render takes the largest equal
 time (the last budget predicted from the speed so far); several seeds per budget. Every
 timed render loads the scene anew from its dict and runs from `mi.load_dict` returned to

@@ -21,17 +21,23 @@ import interiors
 
 PACKAGE = {"qmc_gather": {"type": "qmc_lighttrace"}, "qmc_smooth": {"type": "qmc_lighttrace", "display": "smooth"},
            "bundle_gather": {"type": "ray_bundle"}, "bundle_smooth": {"type": "ray_bundle", "display": "smooth"}}
+#: the package's methods again with the scene's sampler a stratifying one ('_ld': ldsampler): the
+#: display's light, BSDF and gather numbers then come from it (mi_plugins/render/pass_numbers.py)
+STRATIFIED = {"_ld": "ldsampler"}
+PACKAGE.update({name + suffix: config for name, config in list(PACKAGE.items()) for suffix in STRATIFIED})
 METHODS = report.PATHS + tuple(PACKAGE)
 LANES = 1 << 21          # path: samples per pass at most this many per image (memory)
 
 
 def sampler_of(method):
-    return method[5:] if method.startswith("path_") else "independent"
+    if method.startswith("path_"):
+        return method[5:]
+    return next((sampler for suffix, sampler in STRATIFIED.items() if method.endswith(suffix)), "independent")
 
 
 def spp_of(method, budget):
     """The spp a budget renders: the sampler's own rounding (stratified, orthogonal, ldsampler)."""
-    if not method.startswith("path_"):
+    if sampler_of(method) == "independent":
         return int(budget)
     level = mi.log_level()
     mi.set_log_level(mi.LogLevel.Error)
