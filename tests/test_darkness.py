@@ -221,10 +221,11 @@ def test_the_smooth_field_does_not_cross_the_panel(integrator, monkeypatch):
     """The smooth field's vertices on the panel's line are not shared by the floor's
     patches on its two sides (mi_plugins.solution.patchfield.separate): along the panel's foot the
     smooth display matches path within the noise (-1.5 standard errors for both
-    integrators; the row reads 0.0039 against path's 0.0051, the solves' noise 0.0008). Test of the test: with the vertices shared, the field is wrong there (the
-    lit side's light crosses the line, and the corrections push the row in front of it
-    below 0 to keep its patches' averages), where the displays do not read the patch's
-    own value instead of negative light (display.SmoothTables). The broken field is
+    integrators; the row reads 0.0039 against path's 0.0051, the solves' noise 0.0008).
+    Test of the test: with the vertices shared, the field is wrong there (the lit side's
+    light crosses the line, and the corrections push the row in front of it below 0 to
+    keep its patches' averages), where the displays do not read the patch's own value
+    instead of negative light (display.SmoothTables). The broken field is
     compared run by run with the right one at the same seeds (the same solves): the row
     darkens by 0.0014 (28 % of path's value), 12 standard errors of the paired
     difference for both integrators; against path alone it is 3.1 standard errors, the

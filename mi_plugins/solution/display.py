@@ -32,7 +32,7 @@ from mi_plugins.base import seeds
 from mi_plugins.render.camera import emission_edges, lattice_rays, seen_emission
 from mi_plugins.render.core import run_steps
 from mi_plugins.render.frame import coverage
-from mi_plugins.render.pass_numbers import pass_numbers
+from mi_plugins.render.pass_numbers import PixelSobol, pass_numbers
 from mi_plugins.solution.gather import CameraPaths, FlatTables, draw_numbers
 from mi_plugins.solution.surfaces import patch_side
 from mi_plugins.solution.surfaces import Surfaces, reflectance_toward, side_of
@@ -176,7 +176,8 @@ def gather_elsewhere(paths, seed, gather_samples, chain, used, lanes, numbers=No
     is ever stored. ``numbers``: what draws the gather's numbers for every lane (a camera
     pass's, ``mi_plugins.render.pass_numbers``), else a stream of ``seed``."""
     # a sampler's numbers are drawn for every lane, the Sobol points of the gathering lanes alone
-    drawn = draw_numbers(numbers, gather_samples) if numbers is not None and not hasattr(numbers, "subset") else None
+    drawn = draw_numbers(numbers, gather_samples) if numbers is not None and not isinstance(
+        numbers, PixelSobol) else None
     dr.eval(chain.ray, used, lanes, drawn)
     index = dr.compress(lanes)
     total = dr.zeros(mi.Color3f, dr.width(lanes))

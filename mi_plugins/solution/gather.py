@@ -68,6 +68,19 @@ class FlatTables:
         return dr.gather(mi.Color3f, self.tables, index * (2 * self.table.front_count) + side, active)
 
 
+class OwnStream:
+    """A PCG32 stream ``rng`` drawn as a sampler draws (:meth:`next_1d`, :meth:`next_2d`)."""
+
+    def __init__(self, rng):
+        self.rng = rng
+
+    def next_1d(self, active=True):
+        return self.rng.next_float32(active)
+
+    def next_2d(self, active=True):
+        return mi.Point2f(self.next_1d(active), self.next_1d(active))
+
+
 def draw_numbers(sampler, gather_samples, active=True):
     """The numbers of a gather from ``sampler`` (a camera pass's): the light sample's
     Point2f, then (Float, Point2f) for each of the ``gather_samples`` BSDF samples."""
@@ -121,9 +134,7 @@ class CameraPaths:
             drawn = draw_numbers(cam.sampler, sr, active)
             cam.sampler.schedule_state()
         elif drawn is None:
-            own = seeds.pcg(n, seed, "camera_path", 3)
-            u = lambda: own.next_float32(active)
-            drawn = [mi.Point2f(u(), u())] + [(u(), mi.Point2f(u(), u())) for _ in range(sr)]
+            drawn = draw_numbers(OwnStream(seeds.pcg(n, seed, "camera_path", 3)), sr, active)
         light = light_sample(self.scene, si, bsdf, drawn[0], active, float(sr))
         # the gather samples' numbers, lane i * SR + j for sample j of eye lane i
         numbers = [dr.zeros(mi.Float, n * sr) for _ in range(3)]
