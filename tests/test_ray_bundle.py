@@ -370,6 +370,21 @@ def test_stratified_chains_lower_the_error():
     budget.ratio("ray_bundle.rmse_ratio_fixed_order", rmse_ratio_fixed_order(0), 1.8, None)
 
 
+#: the cases of the first shot and of average_diffuse that run in the extended tier only
+#: (make test-extended): the sphere mesh and the simulated Sierpinski, which test_analytic_cases
+#: checks in every run, and one of the two slowest (a case's kernels cost seconds to compile
+#: on a fresh machine)
+FURTHER_CASES = {("first_shot", "furnace_sphere_mesh"), ("first_shot", "diffuse_sphere_mesh"),
+                 ("first_shot", "sierpinski_diffuse_simulated"), ("average", "diffuse_sphere_mesh-fs"),
+                 ("average", "sierpinski_diffuse_simulated-fs"), ("average", "constant_lightsource_box-fs-no_nee")}
+
+
+def tiered(family, cases, ids):
+    """``cases`` as pytest parameters, those of FURTHER_CASES in the extended tier."""
+    return [pytest.param(*c, id=i, marks=[pytest.mark.extended] if (family, i) in FURTHER_CASES else [])
+            for c, i in zip(cases, ids)]
+
+
 # first_shot: direct light by next-event estimation, bundles carry reflected radiance only
 FIRST_SHOT_CASES = [
     ("furnace_box", rb(32), 16, RES),
@@ -388,7 +403,7 @@ FIRST_SHOT_CASES = [
 ]
 
 
-@pytest.mark.parametrize("name,cfg,runs,res", FIRST_SHOT_CASES, ids=[c[0] for c in FIRST_SHOT_CASES])
+@pytest.mark.parametrize("name,cfg,runs,res", tiered("first_shot", FIRST_SHOT_CASES, [c[0] for c in FIRST_SHOT_CASES]))
 def test_first_shot_analytic_cases(name, cfg, runs, res):
     out = check(name, dict(cfg, first_shot=True), runs, res)
     assert out.passed, out
@@ -533,9 +548,9 @@ AVERAGE_BUDGET = {"furnace_box": (16, 8, 8, 16, RES), "furnace_sphere_mesh": (8,
                   "constant_brdf_phong_box": (32, 8, 16, 32, 8), "constant_lightsource_box": (32, 16, 24, 32, 8)}
 
 
-@pytest.mark.parametrize("name,extra", AVERAGE_CASES,
-                         ids=["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
-                              for n, e in AVERAGE_CASES])
+@pytest.mark.parametrize("name,extra", tiered(
+    "average", AVERAGE_CASES, ["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
+                               for n, e in AVERAGE_CASES]))
 def test_average_diffuse_analytic_cases(name, extra):
     chains, averaged, burn_in, runs, res = AVERAGE_BUDGET[name]
     out = check(name, rb(chains, averaged, burn_in, average_diffuse=True, **extra), runs, res, seed=3)
