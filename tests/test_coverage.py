@@ -35,9 +35,9 @@ INTEGRATORS = list(expected.INTEGRATORS)
 #: null and dielectric surfaces, bump maps, environment maps, a lamp facing a ceiling,
 #: negative emission, alpha, depth); each renders two of its primary cells and one flat
 #: or baked display cell in every test run (:func:`regression_cells`). Every other row
-#: renders one cell in every test run (:func:`row_cells`). The other rendered cells are in
-#: the extended tier (``make test-extended``); the refused and N/A cells (no render)
-#: always run. (A cell costs seconds of kernel compilation on a fresh machine, its render
+#: renders one cell in every test run (:func:`row_cells`) but those of GENERIC_KINDS. The
+#: other rendered cells are in the extended tier (``make test-extended``); the refused and
+#: N/A cells (no render) always run. (A cell costs seconds of kernel compilation on a fresh machine, its render
 #: a fraction of one: every cell in every run took 40 minutes there.)
 ALWAYS = ("bsdf:roughconductor", "bsdf:conductor", "bsdf:plastic", "bsdf:dielectric", "bsdf:null", "bsdf:mask",
           "bsdf:bumpmap", "emitter:spot", "emitter:envmap", "format:rgba", "case:light_facing_ceiling",
@@ -97,21 +97,34 @@ INTERMITTENT_DEFECTS = {
         "biased: the floor seen through the glass sphere shows flat patch values where the caustic under the "
         "sphere varies within a patch: -1.3 .. -1.5 % (z -5.8 .. -7.4 at 16 runs over seeds 0, 2000-2001; a "
         "FAIL at seed 2000, a PASS by the t bound at the others); the smooth display -0.5 .. -0.6 % (z > -2)"),
+    ("emitter:projector", "qmc_lighttrace:baked"): (
+        "biased as the conformance suite's baked display under the spot light: the vertex values fitted to the "
+        "patch values overshoot across the projected image's edges: +1.1 .. +2.1 % (z +2.2 .. +4.2 at 16 runs over "
+        "seeds 0, 2000-2003; a PASS by the t bound); the flat display -0.1 .. +0.7 %, the smooth -0.5 .. +1.7 %"),
     ("bsdf:dielectric", "qmc_lighttrace:baked"): (
         "biased as the flat display there: -1.0 .. -1.3 % (z -4.6 .. -5.8 at 16 runs over seeds 0, 2000-2001)"),
 }
 
 
+#: kinds of rows that reach the package's integrators through Mitsuba's generic interfaces
+#: only (a BSDF's sample and eval, a texture's lookup, the film's development into its pixel
+#: format): beyond the regression rows among them (the materials the package classifies:
+#: null, delta, transmitting, bump-mapped; the alpha channel), their rendered cells are in
+#: the extended tier, their refusals run in every test run
+GENERIC_KINDS = ("bsdf", "texture", "format", "film")
+
+
 def row_cells():
-    """The rendered cell of every other row that runs in every test run: one integrator per
-    row, taken in turn from the row's rendered integrators (row k, its k-th modulo their
-    number), so that every row renders in every test run and each integrator gets about
+    """The rendered cell of every other row that runs in every test run (but the rows of
+    GENERIC_KINDS): one integrator per row, taken in turn from the row's rendered
+    integrators (row k, its k-th modulo their number), so that each integrator gets about
     the same share of the rows; the rest of the row is in the extended tier."""
     chosen, k = {}, 0
     for r in ROWS:
         rendered = [i for i in INTEGRATORS if expected.expected(matrix.rows()[r], i) == outcomes.PASS]
         if rendered and r not in ALWAYS:
-            chosen[r] = rendered[k % len(rendered)]
+            if r.split(":")[0] not in GENERIC_KINDS:     # (the turn counts every row: the same
+                chosen[r] = rendered[k % len(rendered)]  # columns as when these rows rendered too)
             k += 1
     return chosen
 
@@ -179,14 +192,16 @@ def test_always_run_rows_exist():
 
 
 def test_every_row_runs_in_every_test_run():
-    """Every row has a cell outside the extended tier, every integrator renders some of the
-    rows that are not regression rows, and every primary column renders at least a third
-    of the regression rows where it renders, every flat and baked display some of them."""
+    """Every row has a cell outside the extended tier (a rendered one unless it is of
+    GENERIC_KINDS), every integrator renders some of the rows that are not regression rows,
+    and every primary column renders at least a third of the regression rows where it
+    renders, every flat and baked display some of them."""
     default = {}
     for cell in _cells():
-        if not cell.marks:
+        if not any(mark.name == "extended" for mark in cell.marks):
             default.setdefault(cell.values[0], set()).add(cell.values[1])
-    assert set(default) == set(ROWS), sorted(set(ROWS) - set(default))
+    generic = {r for r in ROWS if r.split(":")[0] in GENERIC_KINDS and r not in ALWAYS}
+    assert set(default) | generic == set(ROWS), sorted(set(ROWS) - set(default) - generic)
     assert set(row_cells().values()) == set(INTEGRATORS), row_cells()
     regression = regression_cells()
     for i in PRIMARY:

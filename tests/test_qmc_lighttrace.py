@@ -809,7 +809,13 @@ def room(bsdf, where):
     return lambda integrator: ordinary(integrator, ROOM_VIEW, fov=60.0, res=8, **objects)
 
 
-@pytest.mark.parametrize("name", list(NON_DIFFUSE))
+#: the materials of NON_DIFFUSE whose test runs in the extended tier only: the coverage
+#: matrix renders each of them with qmc_lighttrace (its regression rows, or in its extended tier)
+FURTHER_NON_DIFFUSE = ("roughplastic", "bumpmap", "mask", "blendbsdf")
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.extended] if n in FURTHER_NON_DIFFUSE else [])
+                                  for n in NON_DIFFUSE])
 def test_non_diffuse_bsdfs_match_path(name):
     """Walls or a slab of each non-diffuse BSDF (8-16 runs, qmc 32-64 spp, path 256 spp):
     the image means agree (t bound 6.7-11.9 SE; measured after, 16 runs each side: |z|

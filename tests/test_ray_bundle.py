@@ -184,6 +184,7 @@ def test_variants_pass_the_furnace(cfg, runs, res):
     assert out.passed, out
 
 
+@pytest.mark.extended       # a study of the direction sets (40 s on a fresh machine); the analytic cases check the default
 def test_hammersley_directions_are_wrong_independent_are_right():
     """Paper figure 7, the paper's settings (one chain, 48 x 48 lines, here 128
     iterations): the 1-uniform Hammersley sequence of global directions gives a clearly
@@ -243,6 +244,7 @@ def rmse_ratio_long_chain(block):
     return long / four
 
 
+@pytest.mark.extended       # a convergence-rate study (26 s on a fresh machine); stochastic_ray's runs in every run
 def test_error_shrinks_like_inverse_sqrt_of_iterations():
     """One chain (the paper's algorithm): 4x the averaged iterations halve the RMSE.
     A ratio of 1 (iterations not averaged) or 4 (1/iterations) is outside the bounds."""
@@ -359,6 +361,7 @@ def rmse_ratio_fixed_order(block):
     return _direction_set_rmse(block, 256, 16, "fixed_order") / _direction_set_rmse(block, 256, 16, "stratified")
 
 
+@pytest.mark.extended       # a study of the direction sets (40 s on a fresh machine); the analytic cases check the default
 def test_stratified_chains_lower_the_error():
     """Furnace box: stratified chains lower the RMSE against independent chains; the test
     of the test: stratified sets dealt in a fixed order (every chain turned by the same
@@ -1075,6 +1078,7 @@ def test_max_depth_truncates_as_path_does(depth):
     assert out.passed, out
 
 
+@pytest.mark.extended       # 113 s on a fresh machine: the convergence check's burn-in on a room that reflects everything
 def test_albedo_one_room_at_the_defaults_extends_its_burn_in():
     """constant_lightsource_sierpinski (separable BSDFs, albedo 1 where nothing is emitted,
     directional_area emitters): at the default 16 iterations the average was 18 % low
