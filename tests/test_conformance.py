@@ -72,14 +72,18 @@ FURTHER_DISPLAYS = [name for name in INTEGRATORS if "display=patches" in name or
 SMOOTH_DISPLAYS = [name for name in INTEGRATORS if "display=smooth" in name]
 
 
+def further_display_of(scene):
+    """The flat or baked display cell of ``scene`` that runs in every test run."""
+    return FURTHER_DISPLAYS[SCENES.index(scene) % len(FURTHER_DISPLAYS)]
+
+
 def _family(name):
     return name.split("(")[0]
 
 
 def smooth_display_of(scene):
     """The smooth display cell of ``scene`` that runs in every test run."""
-    further = FURTHER_DISPLAYS[SCENES.index(scene) % len(FURTHER_DISPLAYS)]
-    ordered = sorted(SMOOTH_DISPLAYS, key=lambda name: _family(name) != _family(further))
+    ordered = sorted(SMOOTH_DISPLAYS, key=lambda name: _family(name) != _family(further_display_of(scene)))
     renders = [name for name in ordered if scene not in conformance.INTEGRATORS[name].refused]
     return (renders or ordered)[0]
 
@@ -93,7 +97,7 @@ def further_display_tier(scene, name):
         return smooth_display_of(scene) != name
     if name not in FURTHER_DISPLAYS:
         return False
-    return FURTHER_DISPLAYS[SCENES.index(scene) % len(FURTHER_DISPLAYS)] != name
+    return further_display_of(scene) != name
 
 
 def _combinations():

@@ -37,8 +37,8 @@ INTEGRATORS = list(expected.INTEGRATORS)
 #: or baked display cell in every test run (:func:`regression_cells`). Every other row
 #: renders one cell in every test run (:func:`row_cells`) but those of GENERIC_KINDS. The
 #: other rendered cells are in the extended tier (``make test-extended``); the refused and
-#: N/A cells (no render) always run. (A cell costs seconds of kernel compilation on a fresh machine, its render
-#: a fraction of one: every cell in every run took 40 minutes there.)
+#: N/A cells (no render) always run. (A rendered cell costs seconds of kernel compilation
+#: on a fresh machine, and a fraction of a second of rendering.)
 ALWAYS = ("bsdf:roughconductor", "bsdf:conductor", "bsdf:plastic", "bsdf:dielectric", "bsdf:null", "bsdf:mask",
           "bsdf:bumpmap", "emitter:spot", "emitter:envmap", "format:rgba", "case:light_facing_ceiling",
           "case:negative_emission", "depth:2", "package:phong", "package:simulated_area", "case:textured_area_sphere",
@@ -114,6 +114,11 @@ INTERMITTENT_DEFECTS = {
 GENERIC_KINDS = ("bsdf", "texture", "format", "film")
 
 
+def renders(r, i):
+    """True if the cell (row ``r``, integrator ``i``) is expected to render (a PASS)."""
+    return expected.expected(matrix.rows()[r], i) == outcomes.PASS
+
+
 def row_cells():
     """The rendered cell of every other row that runs in every test run (but the rows of
     GENERIC_KINDS): one integrator per row, taken in turn from the row's rendered
@@ -121,7 +126,7 @@ def row_cells():
     the same share of the rows; the rest of the row is in the extended tier."""
     chosen, k = {}, 0
     for r in ROWS:
-        rendered = [i for i in INTEGRATORS if expected.expected(matrix.rows()[r], i) == outcomes.PASS]
+        rendered = [i for i in INTEGRATORS if renders(r, i)]
         if rendered and r not in ALWAYS:
             if r.split(":")[0] not in GENERIC_KINDS:     # (the turn counts every row: the same
                 chosen[r] = rendered[k % len(rendered)]  # columns as when these rows rendered too)
@@ -145,7 +150,7 @@ def regression_cells():
     it renders."""
     chosen = {}
     for k, r in enumerate(ALWAYS):
-        rendered = [i for i in INTEGRATORS if expected.expected(matrix.rows()[r], i) == outcomes.PASS]
+        rendered = [i for i in INTEGRATORS if renders(r, i)]
         primary = [i for i in PRIMARY if i in rendered]
         cells = {primary[(k + j) % len(primary)] for j in range(min(REGRESSION_PRIMARY, len(primary)))}
         if FURTHER_DISPLAYS[k % len(FURTHER_DISPLAYS)] in rendered:
@@ -158,7 +163,7 @@ def _cells():
     every_run, regression = row_cells(), regression_cells()
     for r in ROWS:
         for i in INTEGRATORS:
-            rendered = expected.expected(matrix.rows()[r], i) == outcomes.PASS
+            rendered = renders(r, i)
             extended = every_run.get(r) != i if r not in ALWAYS else i not in regression[r]
             marks = [pytest.mark.extended] if rendered and extended else []
             if (r, i) in KNOWN_DEFECTS:
@@ -205,7 +210,7 @@ def test_every_row_runs_in_every_test_run():
     assert set(row_cells().values()) == set(INTEGRATORS), row_cells()
     regression = regression_cells()
     for i in PRIMARY:
-        where = [r for r in ALWAYS if expected.expected(matrix.rows()[r], i) == outcomes.PASS]
+        where = [r for r in ALWAYS if renders(r, i)]
         assert 3 * sum(i in regression[r] for r in where) >= len(where), (i, regression)
     assert set().union(*regression.values()) >= set(FURTHER_DISPLAYS), regression
 
@@ -236,7 +241,7 @@ def test_known_defects_are_rendered_cells():
     assert not set(KNOWN_DEFECTS) & set(INTERMITTENT_DEFECTS)
     for (r, i) in list(KNOWN_DEFECTS) + list(INTERMITTENT_DEFECTS):
         assert r in ROWS and i in INTEGRATORS, (r, i)
-        assert expected.expected(matrix.rows()[r], i) == outcomes.PASS, (r, i)
+        assert renders(r, i), (r, i)
 
 
 @pytest.mark.parametrize("row,integrator", list(_cells()))

@@ -32,7 +32,7 @@ from mi_plugins.base.errors import Unsupported
 from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
 
 import budget
-from conftest import furnace_rmse, scalar_variant_refusal
+from conftest import furnace_rmse, scalar_variant_refusal, tiered
 
 RES = 16
 #: the paper's algorithm: one chain, bundles of 48 x 48 lines
@@ -377,15 +377,8 @@ def test_stratified_chains_lower_the_error():
 #: (make test-extended): the sphere mesh and the simulated Sierpinski, which test_analytic_cases
 #: checks in every run, and one of the two slowest (a case's kernels cost seconds to compile
 #: on a fresh machine)
-FURTHER_CASES = {("first_shot", "furnace_sphere_mesh"), ("first_shot", "diffuse_sphere_mesh"),
-                 ("first_shot", "sierpinski_diffuse_simulated"), ("average", "diffuse_sphere_mesh-fs"),
-                 ("average", "sierpinski_diffuse_simulated-fs"), ("average", "constant_lightsource_box-fs-no_nee")}
-
-
-def tiered(family, cases, ids):
-    """``cases`` as pytest parameters, those of FURTHER_CASES in the extended tier."""
-    return [pytest.param(*c, id=i, marks=[pytest.mark.extended] if (family, i) in FURTHER_CASES else [])
-            for c, i in zip(cases, ids)]
+FURTHER_FIRST_SHOT = ("furnace_sphere_mesh", "diffuse_sphere_mesh", "sierpinski_diffuse_simulated")
+FURTHER_AVERAGE = ("diffuse_sphere_mesh-fs", "sierpinski_diffuse_simulated-fs", "constant_lightsource_box-fs-no_nee")
 
 
 # first_shot: direct light by next-event estimation, bundles carry reflected radiance only
@@ -406,7 +399,7 @@ FIRST_SHOT_CASES = [
 ]
 
 
-@pytest.mark.parametrize("name,cfg,runs,res", tiered("first_shot", FIRST_SHOT_CASES, [c[0] for c in FIRST_SHOT_CASES]))
+@pytest.mark.parametrize("name,cfg,runs,res", tiered(FIRST_SHOT_CASES, [c[0] for c in FIRST_SHOT_CASES], FURTHER_FIRST_SHOT))
 def test_first_shot_analytic_cases(name, cfg, runs, res):
     out = check(name, dict(cfg, first_shot=True), runs, res)
     assert out.passed, out
@@ -552,8 +545,8 @@ AVERAGE_BUDGET = {"furnace_box": (16, 8, 8, 16, RES), "furnace_sphere_mesh": (8,
 
 
 @pytest.mark.parametrize("name,extra", tiered(
-    "average", AVERAGE_CASES, ["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
-                               for n, e in AVERAGE_CASES]))
+    AVERAGE_CASES, ["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
+                    for n, e in AVERAGE_CASES], FURTHER_AVERAGE))
 def test_average_diffuse_analytic_cases(name, extra):
     chains, averaged, burn_in, runs, res = AVERAGE_BUDGET[name]
     out = check(name, rb(chains, averaged, burn_in, average_diffuse=True, **extra), runs, res, seed=3)

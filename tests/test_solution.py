@@ -13,6 +13,7 @@ import pytest
 
 import budget
 import mi_plugins
+from conftest import tiered
 from mi_plugins.verify import analytic
 from mi_plugins.solution import patchfield, views
 from mi_plugins.patches.meshtable import MeshTable
@@ -117,11 +118,11 @@ CONSTANT = {"furnace": lambda: analytic.furnace(albedo=0.5, emission=0.5, geomet
             "keller_cube": lambda: analytic.keller_cube(resolution=8)}
 
 
-@pytest.mark.parametrize("case,integrator", [
-    pytest.param(c, i, id="%s-%s" % (c, i),
-                 # (ray_bundle in Keller's cube, 32 s on a fresh machine: the furnace checks its displays in every run)
-                 marks=[pytest.mark.extended] if (c, i) == ("keller_cube", "ray_bundle") else [])
-    for c in CONSTANT for i in INTEGRATORS])
+# (ray_bundle in Keller's cube in the extended tier, 32 s on a fresh machine: the furnace checks
+# its displays in every run)
+@pytest.mark.parametrize("case,integrator", tiered([(c, i) for c in CONSTANT for i in INTEGRATORS],
+                                                   ["%s-%s" % (c, i) for c in CONSTANT for i in INTEGRATORS],
+                                                   ("keller_cube-ray_bundle",)))
 def test_displays_are_exact_in_constant_radiance_scenes(case, integrator):
     """The smooth and the flat display of each run's one solve (the display mode is read
     at every render; the solution is kept for its scene and seed) against the exact
@@ -141,11 +142,11 @@ def test_displays_are_exact_in_constant_radiance_scenes(case, integrator):
         assert out["passed"], (display, out)
 
 
-@pytest.mark.parametrize("integrator,display", [
-    pytest.param(i, d, id="%s-%s" % (i, d),
-                 # (ray_bundle's gather, 40 s on a fresh machine: the same clustered table as its smooth display)
-                 marks=[pytest.mark.extended] if (i, d) == ("ray_bundle", "gather") else [])
-    for i in INTEGRATORS for d in ("gather", "smooth")])
+# (ray_bundle's gather in the extended tier, 40 s on a fresh machine: the same clustered table
+# as its smooth display)
+@pytest.mark.parametrize("integrator,display", tiered([(i, d) for i in INTEGRATORS for d in ("gather", "smooth")],
+                                                      ["%s-%s" % (i, d) for i in INTEGRATORS for d in ("gather", "smooth")],
+                                                      ("ray_bundle-gather",)))
 def test_clustered_patches_are_exact_in_the_furnace(integrator, display):
     """The furnace inside a sphere mesh of 1280 triangles, clustered by a patch size of
     0.6 (about 90 patches): constant radiance stays exact."""
