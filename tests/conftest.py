@@ -20,6 +20,7 @@ import mi_plugins  # noqa: E402,F401  (registers the plugins)
 from mi_plugins.verify.analytic import harness  # noqa: E402
 
 import budget  # noqa: E402
+import extended_tier  # noqa: E402
 from budget import seed  # noqa: E402,F401  (re-exported for the tests)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -119,12 +120,12 @@ FIRST = ("test_ray_bundle.py", "test_stochastic_ray.py", "test_qmc_lighttrace.py
          "test_core.py", "test_conformance.py", "test_cli.py")
 
 
-#: the extended tier: the coverage cells marked ``extended`` in tests/test_coverage.py
-#: (the same rows in further columns; every row renders in every run); ``make test``
-#: leaves them out, ``make test-extended`` (pytest --extended) runs every test
+#: the extended tier: the tests marked ``extended`` (the coverage and conformance cells
+#: beyond those their files choose for every run) and those tests/extended_tier.py lists;
+#: ``make test`` leaves them out, ``make test-extended`` (pytest --extended) runs every test
 def pytest_addoption(parser):
     parser.addoption("--extended", action="store_true", default=False,
-                     help="run the extended tier too (the coverage cells marked extended)")
+                     help="run the extended tier too (docs/testing.md)")
 
 
 def pytest_configure(config):
@@ -174,6 +175,9 @@ def pytest_collection_modifyitems(session, config, items):
         budgets = read_budgets()[0]
         key = lambda item, first=key: (-budgets.get(file_of(item.nodeid), DEFAULT_FILE_BUDGET), first(item))
     items.sort(key=key)
+    for item in items:
+        if extended_tier.extended(item.nodeid):
+            item.add_marker(pytest.mark.extended)
     if config.getoption("--extended") or os.environ.get("MI_PLUGINS_EXTENDED"):
         return
     left = [item for item in items if item.get_closest_marker("extended")]
