@@ -122,7 +122,7 @@ def renders(r, i):
 
 #: of the rows that are neither regression rows nor of GENERIC_KINDS, every ROW_STRIDE-th
 #: renders a cell in every test run
-ROW_STRIDE = 5
+ROW_STRIDE = 6
 
 
 def row_cells():

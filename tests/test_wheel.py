@@ -86,7 +86,7 @@ def test_an_installed_wheel_runs_every_sub_command(tmp_path):
     # package; the other rows would add only kernels to compile)
     text = run([cli, "verify", "--quick", "--integrators", "qmc_lighttrace", "--scenes", "keller_cube"], cwd=str(work))
     assert "0 failed" in text, text[-2000:]
-    text = run([cli, "verify", "--suite", "coverage", "--scenes", "medium:homogeneous", "integrator:aov"],
+    text = run([cli, "verify", "--suite", "coverage", "--scenes", "medium:homogeneous", "medium:heterogeneous"],
                cwd=str(work))
     assert text.count("REFUSED") >= 10 and not re.search(r"^\s*FAIL\b", text, re.M), text[-2000:]
     scene = os.path.join(REPO, "configs", "keller_cube.xml")
