@@ -82,10 +82,11 @@ def _renders(scene, name):
 
 
 #: where the turn starts: scene k renders its (k + TURN)-th column. Every start renders every
-#: column; this one leaves the slowest cells to the extended tier (ray_bundle on Mitsuba's
-#: Cornell box: 80 s, most of it rendering; the default tier's cells 210 s in all, measured
-#: on 2 busy cores, where the first start's took 420 s)
-TURN = 4
+#: column; this one leaves the slowest cells to the extended tier (measured on 2 busy cores
+#: from an empty kernel cache: the default cells of the first start took 420 s, ray_bundle
+#: on Mitsuba's Cornell box 80 s of them, most of it rendering; of the fifth 374 s,
+#: qmc_lighttrace's smooth display behind the mirror 77 s of them; of this one about 230 s)
+TURN = 3
 
 
 def default_cell_of(scene):
