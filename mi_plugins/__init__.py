@@ -132,6 +132,18 @@ def solve(scene, integrator=None, seed=0):
     return integrator.solve(scene, seed)
 
 
+def release():
+    """Drop what the package keeps of the last scene it rendered (its patch tables and
+    ``ray_bundle``'s recorded steps, kept so that the next view of the same scene starts at
+    once), then collect the garbage: a scene the caller no longer holds is freed, with its
+    plugins. Call it before rendering other scenes once done with one: Dr.Jit traces every
+    live plugin in every vcall, so a kept scene makes later kernels larger, and one of its
+    plugins that a later integrator cannot trace makes that render fail
+    (:mod:`mi_plugins.base.caches`)."""
+    from mi_plugins.base import caches
+    caches.release()
+
+
 #: shortcuts: ``from mi_plugins import analytic`` (the scenes whose exact radiance is known)
 _SHORTCUTS = {"analytic": "mi_plugins.verify.analytic"}
 

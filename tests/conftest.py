@@ -89,7 +89,8 @@ def _primary_variant():
 
 @pytest.fixture(autouse=True)
 def _collect_scenes(request):
-    """Free the scenes a test leaves in reference cycles right after it: Dr.Jit traces the
+    """Free the scenes a test leaves in reference cycles or in the package's caches of the
+    last scene (``mi_plugins.release``) right after it: Dr.Jit traces the
     methods of every live plugin instance in every later render (docs/findings.md), so
     uncollected scenes make the rest of the suite slower and slower (measured: a 0.4 s
     render took 2.7-12 s with 15 uncollected scenes alive). Tests marked ``renders_nothing``
@@ -97,7 +98,7 @@ def _collect_scenes(request):
     worker's life costs 15 ms, and tests/test_parameters.py's 1 902 tests spent 28 s in it."""
     yield
     if request.node.get_closest_marker("renders_nothing") is None:
-        gc.collect()
+        mi_plugins.release()            # (the package's caches of the test's last scene, then gc.collect())
 
 
 @pytest.fixture(autouse=True)

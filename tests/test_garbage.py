@@ -141,3 +141,29 @@ def test_a_worker_task_collects_at_its_end_in_its_own_thread():
         gc.enable()
     gc.collect()
     assert left[-1]() is None
+
+
+def test_release_frees_the_last_scene_for_mitsubas_integrators():
+    """The package keeps its last scene between renders (the next view starts at once), so
+    that scene's plugins outlive the caller's reference to it, and Dr.Jit traces them in
+    every later vcall: Mitsuba's ptracer on another scene traces a kept checkerboard area
+    light's ray sampling, which raises. ``mi_plugins.release()`` frees the kept scene, and
+    the same render then works."""
+    import mi_plugins
+    d = mi.cornell_box()
+    d["light"]["emitter"]["radiance"] = {"type": "checkerboard", "color0": {"type": "rgb", "value": 0.2},
+                                         "color1": {"type": "rgb", "value": 0.9}}
+    d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 8
+    scene = mi.load_dict(dict(d, integrator={"type": "qmc_lighttrace", "samples": 1000}))
+    mi.render(scene, spp=1)
+    del scene
+    gc.collect()
+    other = mi.cornell_box()
+    other["sensor"]["film"]["width"] = other["sensor"]["film"]["height"] = 8
+    other = mi.load_dict(dict(other, integrator={"type": "ptracer"}))
+    with pytest.raises(RuntimeError) as failed:
+        mi.render(other, spp=1)
+    assert "sample_spectrum" in str(failed.value) + str(failed.value.__cause__), failed.value
+    mi_plugins.release()
+    image = mi.render(other, spp=1)
+    assert dr.all(dr.isfinite(image), axis=None) and dr.mean(image, axis=None) > 0

@@ -163,6 +163,13 @@ class StepCache:
         self.size, self.steps, self.unfrozen, self.last = int(size), OrderedDict(), set(), None
         self.errors = {}            # key -> why its steps could not be recorded
 
+    def clear(self):
+        """Forget every recording (:func:`mi_plugins.base.caches.release`)."""
+        self.steps.clear()
+        self.unfrozen.clear()
+        self.errors.clear()
+        self.last = None
+
     def get(self, key, enabled):
         self.last = key
         enabled = bool(enabled and ENABLED and key not in self.unfrozen)

@@ -4,7 +4,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_plugins.patches import gaps
-from mi_plugins.base import seeds
+from mi_plugins.base import caches, seeds
 from mi_plugins.base.param_docs import documented
 from mi_plugins.solution import display
 from mi_plugins.render.core import MAX_ITERATIONS
@@ -37,6 +37,7 @@ DEFAULT_CHAINS = 64
 #: by one, 10x slower)
 FROZEN_CACHE = 1
 STEP_CACHE = frozen.StepCache(FROZEN_CACHE)
+caches.register(STEP_CACHE.clear)
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}

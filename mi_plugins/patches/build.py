@@ -3,7 +3,7 @@ lie partly in the dark (:mod:`mi_plugins.patches.darkness`), and the patch param
 choose its resolution."""
 import numpy as np
 
-from mi_plugins.base import fingerprint
+from mi_plugins.base import caches, fingerprint
 from mi_plugins.base.param_docs import Row
 from mi_plugins.patches import setup_cache, tessellation
 from mi_plugins.patches.darkness import renumbered, split_in_the_dark
@@ -14,6 +14,7 @@ from mi_plugins.patches.meshtable import MeshTable
 #: seconds to build. Held here, not by an integrator, which its scene holds (a reference
 #: cycle through C++ would keep every scene alive); this keeps the last scene alive only
 _LAST = []
+caches.register(_LAST.clear)
 
 
 def cached_table(scene, who, h, back_sides=False, subdivide=True, cluster=True, before_build=None, dark_levels=0):

@@ -42,6 +42,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base import caches
 from mi_plugins.base.param_docs import Row
 
 from mi_plugins.base.sequences import hash32
@@ -276,6 +277,7 @@ def with_splits(table, rounds):
 
 
 _REPLAYED = []
+caches.register(_REPLAYED.clear)
 
 
 def split_recorded(table, split):

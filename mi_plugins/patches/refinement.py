@@ -25,6 +25,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_plugins.base import caches
 from mi_plugins.base.param_docs import Row
 
 from mi_plugins.patches.tessellation import sub_triangle_coords
@@ -231,6 +232,7 @@ def element_octants_of(part, elements, h, depth):
 
 #: the last refined table (as ``meshtable.cached_table`` keeps the last table)
 _LAST = []
+caches.register(_LAST.clear)
 
 
 def replay(table, rounds):
