@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh Debian machine:
 #   make demo   set up, then render the Cornell box with every integrator (PNGs, contact sheet) and a walkthrough from one solve (GIF)
-#   make test   set up, then run the test suite (two processes, a file each at a time, the longest first; about 70 min on 2 cores where every kernel compiles anew, measured 2026-12-07: docs/testing.md)
+#   make test   set up, then run the test suite's default tier (two processes, a file each at a time, the longest first; 25 min on 2 cores where every kernel compiles anew, measured 2026-12-07: docs/testing.md)
 #   make test-extended   the suite with its extended tier (further cells and cases: docs/testing.md)
 # and: make quick (the quick verification table), make verify (the full one)
 PYTHON ?= python3
