@@ -64,13 +64,6 @@ def scalar_variant_refusal(plugin_type):
     return ("ERR" in r.stdout and "LOADED" not in r.stdout), r.stdout + r.stderr
 
 
-def tiered(values, ids, extended):
-    """``values`` (tuples, or single values) as pytest parameters named ``ids``, those whose
-    id is in ``extended`` in the extended tier (``make test-extended``)."""
-    return [pytest.param(*(v if isinstance(v, tuple) else (v,)), id=i,
-                         marks=[pytest.mark.extended] if i in extended else []) for v, i in zip(values, ids)]
-
-
 def run_python(code, env=None, cwd=None):
     """Run a snippet in a fresh interpreter (variant state is process-global)."""
     full_env = dict(os.environ)

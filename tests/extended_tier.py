@@ -97,7 +97,7 @@ FURTHER_CASES = {
     "test_qmc_lighttrace.py::test_keller_cube_exact_truncated_value": (
         "independent", "lcg", "sobol", "faure"),
     "test_qmc_lighttrace.py::test_non_diffuse_bsdfs_match_path": (
-        "phong", "plastic", "roughconductor"),
+        "phong", "plastic", "roughconductor", "roughplastic", "bumpmap", "mask", "blendbsdf"),
     "test_qmc_lighttrace.py::test_particles_carry_the_power_of_every_emitter_type": (
         "constant", "directional", "envmap"),
     "test_qmc_lighttrace.py::test_particles_choose_lobe_and_direction_with_independent_numbers": (
@@ -109,7 +109,8 @@ FURTHER_CASES = {
         "furnace_sphere_mesh", "sierpinski_diffuse_simulated", "sierpinski_phong_simulated"),
     "test_ray_bundle.py::test_average_diffuse_analytic_cases": (
         "bekaert_sierpinski-fs-no_nee", "bekaert_sierpinski", "constant_brdf_phong_box-fs",
-        "constant_lightsource_box", "furnace_sphere_mesh-fs"),
+        "constant_lightsource_box", "furnace_sphere_mesh-fs", "diffuse_sphere_mesh-fs",
+        "sierpinski_diffuse_simulated-fs", "constant_lightsource_box-fs-no_nee"),
     "test_ray_bundle.py::test_average_diffuse_variants_pass_the_furnace": (
         "patch-fs-one_way", "patch"),
     "test_ray_bundle.py::test_curved_patches_evaluated_where_they_face_away_fail": (
@@ -117,7 +118,8 @@ FURTHER_CASES = {
     "test_ray_bundle.py::test_curved_patches_keep_their_power": (
         "furnace_cylinder",),
     "test_ray_bundle.py::test_first_shot_analytic_cases": (
-        "constant_brdf_phong_box", "constant_lightsource_box"),
+        "constant_brdf_phong_box", "constant_lightsource_box", "furnace_sphere_mesh", "diffuse_sphere_mesh",
+        "sierpinski_diffuse_simulated"),
     "test_ray_bundle.py::test_max_depth_truncates_as_path_does": (
         "1", "5"),
     "test_ray_bundle.py::test_variants_pass_the_furnace": (
@@ -151,9 +153,9 @@ FURTHER_CASES = {
     "test_solution.py::test_a_wrong_solution_fails_the_constant_radiance_check": (
         "ray_bundle",),
     "test_solution.py::test_clustered_patches_are_exact_in_the_furnace": (
-        "qmc_lighttrace-gather", "ray_bundle-smooth"),
+        "qmc_lighttrace-gather", "ray_bundle-smooth", "ray_bundle-gather"),
     "test_solution.py::test_displays_are_exact_in_constant_radiance_scenes": (
-        "furnace-ray_bundle", "keller_cube-qmc_lighttrace"),
+        "furnace-ray_bundle", "keller_cube-qmc_lighttrace", "keller_cube-ray_bundle"),
     "test_solution.py::test_displays_of_the_bundles_that_carry_the_direct_light": (
         "baked", "patches"),
     "test_solution.py::test_previews_show_the_solution_as_it_goes": (
@@ -265,6 +267,16 @@ SLOW_TESTS = {
         "the other emitter-sample tests and the coverage matrix's sensor and film rows",
     "test_stochastic_ray.py::test_the_bright_furnace_renders_at_the_default_max_iterations":
         "the furnace cases at the default limit; its refusal below the limit runs in every run",
+    "test_ray_bundle.py::test_lightsource_sierpinski":
+        "stochastic_ray's case of the same scene; a 3.5 % bound, the power rule's documented exception",
+    "test_ray_bundle.py::test_hammersley_directions_are_wrong_independent_are_right":
+        "a study of the direction sets; the analytic cases check the default",
+    "test_ray_bundle.py::test_error_shrinks_like_inverse_sqrt_of_iterations":
+        "a convergence-rate study; stochastic_ray's runs in every run",
+    "test_ray_bundle.py::test_stratified_chains_lower_the_error":
+        "a study of the direction sets; the analytic cases check the default",
+    "test_ray_bundle.py::test_albedo_one_room_at_the_defaults_extends_its_burn_in":
+        "the refusal of a burn-in beyond max_iterations (113 s on a fresh machine)",
 }
 
 

@@ -36,7 +36,6 @@ from mi_plugins.integrators.qmc_lighttrace.checks import check_gather_lanes
 from mi_plugins.patches.meshtable import MeshTable, NonMeshShapeError  # noqa: F401  (the error type of the refusal)
 
 import budget
-from conftest import tiered
 
 RES = 16
 #: runs of the image comparisons whose tolerance is far below the power rule's 2 % (0.1-0.5 %
@@ -810,12 +809,7 @@ def room(bsdf, where):
     return lambda integrator: ordinary(integrator, ROOM_VIEW, fov=60.0, res=8, **objects)
 
 
-#: the materials of NON_DIFFUSE whose test runs in the extended tier only: the coverage
-#: matrix renders each of them with qmc_lighttrace (its regression rows, or in its extended tier)
-FURTHER_NON_DIFFUSE = ("roughplastic", "bumpmap", "mask", "blendbsdf")
-
-
-@pytest.mark.parametrize("name", tiered(list(NON_DIFFUSE), list(NON_DIFFUSE), FURTHER_NON_DIFFUSE))
+@pytest.mark.parametrize("name", list(NON_DIFFUSE))
 def test_non_diffuse_bsdfs_match_path(name):
     """Walls or a slab of each non-diffuse BSDF (8-16 runs, qmc 32-64 spp, path 256 spp):
     the image means agree (t bound 6.7-11.9 SE; measured after, 16 runs each side: |z|

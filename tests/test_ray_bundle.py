@@ -32,7 +32,7 @@ from mi_plugins.base.errors import Unsupported
 from mi_plugins.integrators.ray_bundle.integrator import PAPER_SETTINGS
 
 import budget
-from conftest import furnace_rmse, scalar_variant_refusal, tiered
+from conftest import furnace_rmse, scalar_variant_refusal
 
 RES = 16
 #: the paper's algorithm: one chain, bundles of 48 x 48 lines
@@ -150,7 +150,6 @@ def test_curved_patches_evaluated_where_they_face_away_fail(monkeypatch, name, c
     assert not out.passed and out.z < -8, out
 
 
-@pytest.mark.extended       # 44 s on a fresh machine for a 3.5 % bound; stochastic_ray checks the scene in every run
 def test_lightsource_sierpinski(request):
     """constant_lightsource_sierpinski: its non-emitting surfaces reflect everything
     (burn-in about 72, see above) and the chains' radiance is very noisy: per-run SD 4.1 %
@@ -184,7 +183,6 @@ def test_variants_pass_the_furnace(cfg, runs, res):
     assert out.passed, out
 
 
-@pytest.mark.extended       # a study of the direction sets (40 s on a fresh machine); the analytic cases check the default
 def test_hammersley_directions_are_wrong_independent_are_right():
     """Paper figure 7, the paper's settings (one chain, 48 x 48 lines, here 128
     iterations): the 1-uniform Hammersley sequence of global directions gives a clearly
@@ -244,7 +242,6 @@ def rmse_ratio_long_chain(block):
     return long / four
 
 
-@pytest.mark.extended       # a convergence-rate study (26 s on a fresh machine); stochastic_ray's runs in every run
 def test_error_shrinks_like_inverse_sqrt_of_iterations():
     """One chain (the paper's algorithm): 4x the averaged iterations halve the RMSE.
     A ratio of 1 (iterations not averaged) or 4 (1/iterations) is outside the bounds."""
@@ -361,7 +358,6 @@ def rmse_ratio_fixed_order(block):
     return _direction_set_rmse(block, 256, 16, "fixed_order") / _direction_set_rmse(block, 256, 16, "stratified")
 
 
-@pytest.mark.extended       # a study of the direction sets (40 s on a fresh machine); the analytic cases check the default
 def test_stratified_chains_lower_the_error():
     """Furnace box: stratified chains lower the RMSE against independent chains; the test
     of the test: stratified sets dealt in a fixed order (every chain turned by the same
@@ -371,14 +367,6 @@ def test_stratified_chains_lower_the_error():
     # 0.061); fixed order / stratified 3.14 .. 6.31 (median 4.36, log-SD 0.167)
     budget.ratio("ray_bundle.rmse_ratio_stratified", rmse_ratio_stratified(0), 1.12, None)
     budget.ratio("ray_bundle.rmse_ratio_fixed_order", rmse_ratio_fixed_order(0), 1.8, None)
-
-
-#: the cases of the first shot and of average_diffuse that run in the extended tier only
-#: (make test-extended): the sphere mesh and the simulated Sierpinski, which test_analytic_cases
-#: checks in every run, and one of the two slowest (a case's kernels cost seconds to compile
-#: on a fresh machine)
-FURTHER_FIRST_SHOT = ("furnace_sphere_mesh", "diffuse_sphere_mesh", "sierpinski_diffuse_simulated")
-FURTHER_AVERAGE = ("diffuse_sphere_mesh-fs", "sierpinski_diffuse_simulated-fs", "constant_lightsource_box-fs-no_nee")
 
 
 # first_shot: direct light by next-event estimation, bundles carry reflected radiance only
@@ -399,7 +387,7 @@ FIRST_SHOT_CASES = [
 ]
 
 
-@pytest.mark.parametrize("name,cfg,runs,res", tiered(FIRST_SHOT_CASES, [c[0] for c in FIRST_SHOT_CASES], FURTHER_FIRST_SHOT))
+@pytest.mark.parametrize("name,cfg,runs,res", FIRST_SHOT_CASES, ids=[c[0] for c in FIRST_SHOT_CASES])
 def test_first_shot_analytic_cases(name, cfg, runs, res):
     out = check(name, dict(cfg, first_shot=True), runs, res)
     assert out.passed, out
@@ -544,9 +532,8 @@ AVERAGE_BUDGET = {"furnace_box": (16, 8, 8, 16, RES), "furnace_sphere_mesh": (8,
                   "constant_brdf_phong_box": (32, 8, 16, 32, 8), "constant_lightsource_box": (32, 16, 24, 32, 8)}
 
 
-@pytest.mark.parametrize("name,extra", tiered(
-    AVERAGE_CASES, ["%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "")
-                    for n, e in AVERAGE_CASES], FURTHER_AVERAGE))
+@pytest.mark.parametrize("name,extra", AVERAGE_CASES, ids=[
+    "%s%s%s" % (n, "-fs" if e.get("first_shot") else "", "-no_nee" if "gather_nee" in e else "") for n, e in AVERAGE_CASES])
 def test_average_diffuse_analytic_cases(name, extra):
     chains, averaged, burn_in, runs, res = AVERAGE_BUDGET[name]
     out = check(name, rb(chains, averaged, burn_in, average_diffuse=True, **extra), runs, res, seed=3)
@@ -1071,7 +1058,6 @@ def test_max_depth_truncates_as_path_does(depth):
     assert out.passed, out
 
 
-@pytest.mark.extended       # 113 s on a fresh machine: the convergence check's burn-in on a room that reflects everything
 def test_albedo_one_room_at_the_defaults_extends_its_burn_in():
     """constant_lightsource_sierpinski (separable BSDFs, albedo 1 where nothing is emitted,
     directional_area emitters): at the default 16 iterations the average was 18 % low

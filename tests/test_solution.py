@@ -13,7 +13,6 @@ import pytest
 
 import budget
 import mi_plugins
-from conftest import tiered
 from mi_plugins.verify import analytic
 from mi_plugins.solution import patchfield, views
 from mi_plugins.patches.meshtable import MeshTable
@@ -118,11 +117,8 @@ CONSTANT = {"furnace": lambda: analytic.furnace(albedo=0.5, emission=0.5, geomet
             "keller_cube": lambda: analytic.keller_cube(resolution=8)}
 
 
-# (ray_bundle in Keller's cube in the extended tier, 32 s on a fresh machine: the furnace checks
-# its displays in every run)
-@pytest.mark.parametrize("case,integrator", tiered([(c, i) for c in CONSTANT for i in INTEGRATORS],
-                                                   ["%s-%s" % (c, i) for c in CONSTANT for i in INTEGRATORS],
-                                                   ("keller_cube-ray_bundle",)))
+@pytest.mark.parametrize("case,integrator", [(c, i) for c in CONSTANT for i in INTEGRATORS],
+                         ids=["%s-%s" % (c, i) for c in CONSTANT for i in INTEGRATORS])
 def test_displays_are_exact_in_constant_radiance_scenes(case, integrator):
     """The smooth and the flat display of each run's one solve (the display mode is read
     at every render; the solution is kept for its scene and seed) against the exact
@@ -142,11 +138,8 @@ def test_displays_are_exact_in_constant_radiance_scenes(case, integrator):
         assert out["passed"], (display, out)
 
 
-# (ray_bundle's gather in the extended tier, 40 s on a fresh machine: the same clustered table
-# as its smooth display)
-@pytest.mark.parametrize("integrator,display", tiered([(i, d) for i in INTEGRATORS for d in ("gather", "smooth")],
-                                                      ["%s-%s" % (i, d) for i in INTEGRATORS for d in ("gather", "smooth")],
-                                                      ("ray_bundle-gather",)))
+@pytest.mark.parametrize("integrator,display", [(i, d) for i in INTEGRATORS for d in ("gather", "smooth")],
+                         ids=["%s-%s" % (i, d) for i in INTEGRATORS for d in ("gather", "smooth")])
 def test_clustered_patches_are_exact_in_the_furnace(integrator, display):
     """The furnace inside a sphere mesh of 1280 triangles, clustered by a patch size of
     0.6 (about 90 patches): constant radiance stays exact."""

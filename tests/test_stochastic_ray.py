@@ -46,10 +46,9 @@ CASES = [
     ("constant_lightsource_sierpinski", {"iterations": 72, "burn_in": 64}, 64, RES),
 ]
 
-
-
 #: a furnace of albedo 0.95: a long burn-in (the max_iterations tests)
 BRIGHT_FURNACE = analytic.furnace(0.95, 0.05, "box", resolution=4)
+
 
 def integrator(**kw):
     return dict({"type": "stochastic_ray"}, **kw)

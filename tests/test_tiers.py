@@ -13,8 +13,7 @@ def _collected():
     extended tier (a fresh interpreter)."""
     files = sorted({key.split("::")[0] for key in list(extended_tier.FURTHER_CASES) + list(extended_tier.SLOW_TESTS)})
     r = run_python("import sys, pytest\nsys.exit(pytest.main(['--collect-only', '-q', '--extended', "
-                   "'-p', 'no:cacheprovider', '-p', 'no:randomly'] + %r))" % [os.path.join("tests", f) for f in files],
-                   cwd=REPO)
+                   "'-p', 'no:cacheprovider'] + %r))" % [os.path.join("tests", f) for f in files], cwd=REPO)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     found = collections.defaultdict(list)
     for line in r.stdout.splitlines():
