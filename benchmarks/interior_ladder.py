@@ -21,9 +21,10 @@ import interiors
 
 PACKAGE = {"qmc_gather": {"type": "qmc_lighttrace"}, "qmc_smooth": {"type": "qmc_lighttrace", "display": "smooth"},
            "bundle_gather": {"type": "ray_bundle"}, "bundle_smooth": {"type": "ray_bundle", "display": "smooth"}}
-#: the package's methods again with the scene's sampler a stratifying one ('_ld': ldsampler): the
+#: the package's methods again with the scene's sampler a stratifying one ('_ld': ldsampler,
+#: '_orth': orthogonal, `path`'s best on two of the three rooms): the film positions and the
 #: display's light, BSDF and gather numbers then come from it (mi_plugins/render/pass_numbers.py)
-STRATIFIED = {"_ld": "ldsampler"}
+STRATIFIED = {"_ld": "ldsampler", "_orth": "orthogonal"}
 PACKAGE.update({name + suffix: config for name, config in list(PACKAGE.items()) for suffix in STRATIFIED})
 METHODS = report.PATHS + tuple(PACKAGE)
 LANES = 1 << 21          # path: samples per pass at most this many per image (memory)

@@ -204,6 +204,37 @@ def test_the_display_modes_trace_paths_by_the_patch_count():
         assert integrator.paths_used == expected, (params, integrator.paths_used, expected)
 
 
+
+def test_the_display_modes_solve_grows_with_the_camera_samples():
+    """Where a render's camera samples ask for more than the patches' share, a display
+    mode's default solve takes PATHS_PER_CAMERA_SAMPLE of them (rounded up to an eighth of
+    a power of two), so that more spp lowers the solve's noise too; smaller budgets share
+    the patches' solve, one budget's renders share theirs; a given ``samples``, the gather
+    and a solve asked for (``mi_plugins.solve``: it serves every budget) keep their counts. The test of the test: the first budget
+    above the patches' share solves anew."""
+    from mi_plugins.integrators.qmc_lighttrace.integrator import DEFAULT_SAMPLES, PATHS_PER_CAMERA_SAMPLE
+    d = mi.cornell_box()
+    d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 32
+    scene = mi.load_dict(d)
+    coarse = {"type": "qmc_lighttrace", "patch_size": 0.5, "display": "smooth"}
+    integrator = mi.load_dict(coarse)
+    above = 512           # 0.25 x 512 x 1024 camera samples = 131 072 > 100 000
+    assert PATHS_PER_CAMERA_SAMPLE * above * 1024 > DEFAULT_SAMPLES > PATHS_PER_CAMERA_SAMPLE * 256 * 1024
+    counts = []
+    for spp in (16, 256, above, above, 2 * above, 520):
+        mi.render(scene, integrator=integrator, spp=spp, seed=budget.seed(0))
+        counts.append((integrator.paths_used, integrator.solve_count))
+    assert counts == [(DEFAULT_SAMPLES, 1), (DEFAULT_SAMPLES, 1), (131072, 2), (131072, 2), (262144, 3),
+                      (147456, 4)], counts
+    integrator.solve(scene, seed=budget.seed(0))          # (a solve asked for serves every budget)
+    mi.render(scene, integrator=integrator, spp=2 * above, seed=budget.seed(0))
+    assert (integrator.paths_used, integrator.solve_count) == (DEFAULT_SAMPLES, 5)
+    for params in (dict(coarse, samples=5000), {"type": "qmc_lighttrace", "patch_size": 0.5}):
+        other = mi.load_dict(params)
+        mi.render(scene, integrator=other, spp=above, seed=budget.seed(0))
+        assert other.paths_used == params.get("samples", DEFAULT_SAMPLES), (params, other.paths_used)
+
+
 def test_subdivided_cube_stays_exact():
     """The default splits the cube's 12 triangles (edge 2.8) into 12 x 196 sub-triangles:
     each still estimates the exact 1/2, with the noise of 196 x fewer particles per patch

@@ -41,6 +41,13 @@ DEFAULT_SAMPLES = 100000
 #: patches themselves, whose noise is the solve's (on a furnished room of 26 500 patches,
 #: 100 000 paths left the smooth display at 2.2x the error of 1.6 M in the same seconds)
 PATHS_PER_PATCH = 64
+#: the display modes' default paths per camera sample of the render (spp x the film's
+#: pixels) where that is more than PATHS_PER_PATCH per patch: the image's error is the
+#: solve's noise and the camera samples' together, and only a solve that grows with the
+#: camera samples lets it keep falling (on a furnished room, 128 x 96 px at 3721 spp:
+#: 0.00185 RMSE with the patches' 1.7 M paths, 0.00115 with 13.7 M in 1.37x the time;
+#: the time-optimal share measured there is 0.3 paths per camera sample: docs/qmc.md)
+PATHS_PER_CAMERA_SAMPLE = 0.25
 #: at most this many gather samples per eye ray
 MAX_GATHER = 1024
 
@@ -139,6 +146,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.layers = Layers(self.max_depth, visible=self.display != "gather")
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
         self.paths_used, self.delta_e_history = 0, []
+        self.camera_paths = 0      # the default solve's share of a render's camera samples (budget_paths)
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
@@ -150,7 +158,9 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         """Run the particle phase alone (and with ``report`` evaluate the reported radiances);
         returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
         self.prepare(scene, None)
-        particle_phase(self, scene, self.patch_table(scene), seed, report=report)
+        table = self.patch_table(scene)
+        self.budget_paths(table, 0)
+        particle_phase(self, scene, table, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
     def solution_settings(self):
@@ -171,13 +181,29 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
 
     def paths_for(self, table):
         """The particle paths of a solve on ``table``: ``samples``, or by default
-        DEFAULT_SAMPLES with ``display`` 'gather' and at least PATHS_PER_PATCH per patch
-        of ``table`` in the display modes."""
+        DEFAULT_SAMPLES with ``display`` 'gather'; in the display modes at least
+        PATHS_PER_PATCH per patch of ``table`` and the render's share of its camera
+        samples (:meth:`budget_paths`)."""
         if self.samples is not None:
             return self.samples
         if self.display == "gather":
             return DEFAULT_SAMPLES
-        return min(max(DEFAULT_SAMPLES, PATHS_PER_PATCH * int(table.front_count)), MAX_PATHS)
+        return min(max(DEFAULT_SAMPLES, PATHS_PER_PATCH * int(table.front_count), self.camera_paths), MAX_PATHS)
+
+    def budget_paths(self, table, camera_samples):
+        """Set the paths a display mode's default solve takes for a render of
+        ``camera_samples`` (spp x the film's pixels): PATHS_PER_CAMERA_SAMPLE of them,
+        rounded up to a multiple of an eighth of a power of two (renders of nearby budgets
+        share one solve), where that is more than the patches' own share; else 0, and a
+        render of any smaller budget reuses the same solve."""
+        self.camera_paths = 0
+        wanted = int(PATHS_PER_CAMERA_SAMPLE * camera_samples)
+        if self.samples is None and self.display != "gather" and wanted > self.paths_for(table):
+            step = 1 << max(wanted.bit_length() - 4, 0)
+            self.camera_paths = min(-(-wanted // step) * step, MAX_PATHS)
+
+    def budget_key(self):
+        return self.camera_paths
 
     def _meta(self, scene, table, seed, paths):
         return solution_meta(self, scene, table, seed, self.patch_size_for(scene), paths=int(paths),
@@ -203,7 +229,10 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             raise ValueError("qmc_lighttrace: epsilon=%g (adaptive termination) is sequential and cannot be "
                              "split; valid for distributed rendering: no epsilon, a fixed samples count"
                              % self.epsilon)
-        return ParticleRanges(paths=self.paths_for(self.patch_table(scene)))
+        table = self.patch_table(scene)
+        size = scene.sensors()[0].film().crop_size()
+        self.budget_paths(table, int(spp) * int(size[0]) * int(size[1]))
+        return ParticleRanges(paths=self.paths_for(table))
 
     def trace_particles(self, scene, start, count, seed):
         """The deposits (layers, K, 2, 3) of the paths start .. start + count - 1."""
@@ -225,6 +254,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             solution = Solution(particle_phase(self, scene, table, frame.seed, given=frame.task)[0], table.areas_np,
                                 self._meta(scene, table, frame.seed, self.paths_used))
         else:
+            self.budget_paths(table, frame.spp * frame.pixels)
             solution = self.solution_for(scene, frame.seed, table, frame.sensor)
             table = self.table_of(scene, solution)
         if self.display != "gather":

@@ -21,9 +21,12 @@ ROWS = (
         "Keller's M >= 0: bounces drawn from the sequence (4 + 3M dimensions must fit: Halton/Faure M <= 84); "
         "later bounces play Russian roulette (survival: the bounce's largest weight, at most 0.99). No "
         "truncation"),
-    Row("samples", "int", "100000 (``display`` 'gather'); in the display modes 64 per patch, at least 100000",
+    Row("samples", "int", "100000 (``display`` 'gather'); in the display modes 64 per patch, at least 100000, "
+        "and at least 0.25 per camera sample of the render",
         "N paths, 1 .. 2^32 (when ``epsilon`` is not given). The display modes read the stored light of the "
-        "patches themselves: their default follows the patch count"),
+        "patches themselves: their default follows the patch count, and grows with the render's camera samples "
+        "(spp x pixels) where those ask for more, so that more spp lowers the solve's noise too (a render of "
+        "another budget then solves again; a given ``samples`` keeps one solve for every budget)"),
     Row("epsilon", "float", "none", "> 0: adaptive termination threshold on Delta E"),
     Row("batch", "int", "1000", "Delta N, 1 .. 2^32"),
     Row("patience", "int", "2", "T >= 1 consecutive batches below ``epsilon``"),

@@ -7,9 +7,12 @@ view-independent solutions, kept and shown.
   estimate, or 'smooth', 'patches', 'baked' from the solution) and ``preview_every``;
 - the solution of the last scene and seed it rendered (:meth:`solution_for`): a render
   of the same scene (same object, same content: ``mi_plugins.base.fingerprint``) with the
-  same seed and settings reuses it, whatever the sensor or spp; another seed, an edited
-  scene or another scene object solves again (``solve_count`` counts the solves). The
-  cache holds numpy arrays only, never the scene (which holds the integrator);
+  same seed and settings reuses it, whatever the sensor or spp, unless the plugin sizes
+  its default solve by the render's camera samples (:meth:`budget_paths`: then a render
+  of a budget that asks for another size solves again; a solve of :meth:`solve` serves
+  every budget); another seed, an edited scene or another scene object solves again
+  (``solve_count`` counts the solves). The cache holds numpy arrays only, never the
+  scene (which holds the integrator);
 - :meth:`solve` (``mi_plugins.solve``), :meth:`use_solution` (a solution loaded from a
   file or shipped to a worker) and ``preview_callback`` (``f(image, done, total)``,
   called every ``preview_every`` steps of a solve with the image of the solution so far).
@@ -34,7 +37,8 @@ DISPLAY_ROWS = (
     Row("display", "string", "``'gather'``",
         "how the image is made: ``'gather'``, the integrator's own estimate (solved anew for every render); "
         "``'smooth'``, ``'patches'``, ``'baked'``: from the view-independent solution, kept for every later "
-        "render of the scene with the same seed, whatever the sensor or spp. ``'smooth'``: direct light by "
+        "render of the scene with the same seed, whatever the sensor or spp (``qmc_lighttrace``'s default solve "
+        "grows with the render's camera samples beyond its patches' share: see ``samples``). ``'smooth'``: direct light by "
         "next-event estimation plus the stored light interpolated from per-vertex values; ``'patches'``: the "
         "flat patch values; ``'baked'``: the interpolated patch radiance (``max_depth`` -1); glossy and "
         "specular visible points gather through to the next diffuse surface (``mi_plugins.solution.display``)"),
@@ -84,6 +88,7 @@ class SolutionIntegrator(CoreIntegrator):
         self.preview_callback = None
         self.solve_count = 0
         self._cached = None          # (key, Solution) of the last solve
+        self._cached_any_budget = False  # it came from solve(): every render budget reuses it
         self._given = None           # a Solution handed over by use_solution
         self.last_solution = None    # the solution of the last render in a display mode (or solve)
         self.dark_record = None      # dark splits to replay (a distributed render's; None: its own)
@@ -105,8 +110,19 @@ class SolutionIntegrator(CoreIntegrator):
         raise NotImplementedError
 
     # ------------------------------------------------------------------ the cache
+    def budget_paths(self, table, camera_samples):
+        """Size a default solve for a render of ``camera_samples`` (spp x the film's pixels;
+        0: a solve alone); a plugin whose solve does not grow with them ignores it."""
+
+    def budget_key(self):
+        """What a render's budget changes in a default solve (a plugin whose solve grows
+        with the camera samples: its size); never part of the settings a saved solution
+        is matched by, which serves every budget."""
+        return None
+
     def _key(self, scene, seed):
-        return (id(scene), fingerprint.scene_fingerprint(scene), int(seed), self.solution_settings())
+        return (id(scene), fingerprint.scene_fingerprint(scene), int(seed), self.solution_settings(),
+                self.budget_key())
 
     def solution_for(self, scene, seed, table, sensor=None, **solve):
         """The solution of ``scene`` (patches ``table``) and ``seed``: the kept or given one
@@ -121,7 +137,8 @@ class SolutionIntegrator(CoreIntegrator):
             given = self._given = given.for_scene(scene)
             self.last_solution = given
             return given
-        if self._cached is not None and self._cached[0] == key:
+        if self._cached is not None and (self._cached[0] == key or (self._cached_any_budget
+                                                                   and self._cached[0][:-1] == key[:-1])):
             self.last_solution = self._cached[1]
             return self._cached[1]
         preview = self._previewer(scene, sensor, table) if self.preview_every and self.preview_callback else None
@@ -130,7 +147,7 @@ class SolutionIntegrator(CoreIntegrator):
         solution.meta.update(seconds=time.perf_counter() - start, settings_key=settings)
         self.solve_count += 1
         if not self.progress.interrupted:
-            self._cached = (key, solution)
+            self._cached, self._cached_any_budget = (key, solution), False
         self.last_solution = None if self.progress.interrupted else solution
         return solution
 
@@ -139,7 +156,11 @@ class SolutionIntegrator(CoreIntegrator):
         no garbage collection meanwhile (:mod:`mi_plugins.base.collection`)."""
         with collection.paused():
             self.prepare(scene, None)
-            solution = self.solution_for(scene, seed, self.patch_table(scene))
+            table = self.patch_table(scene)
+            self.budget_paths(table, 0)
+            solution = self.solution_for(scene, seed, table)
+            # (a solve asked for serves the later renders of every budget, as a given one does)
+            self._cached_any_budget = self._cached is not None and self._cached[1] is solution
             return solution.complete(scene, self.table_of(scene, solution))
 
     def table_of(self, scene, solution):
