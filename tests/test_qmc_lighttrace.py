@@ -204,14 +204,13 @@ def test_the_display_modes_trace_paths_by_the_patch_count():
         assert integrator.paths_used == expected, (params, integrator.paths_used, expected)
 
 
-
 def test_the_display_modes_solve_grows_with_the_camera_samples():
     """Where a render's camera samples ask for more than the patches' share, a display
     mode's default solve takes PATHS_PER_CAMERA_SAMPLE of them (rounded up to an eighth of
     a power of two), so that more spp lowers the solve's noise too; smaller budgets share
     the patches' solve, one budget's renders share theirs; a given ``samples``, the gather
-    and a solve asked for (``mi_plugins.solve``: it serves every budget) keep their counts. The test of the test: the first budget
-    above the patches' share solves anew."""
+    and a solve asked for (``mi_plugins.solve``: it serves every budget) keep their
+    counts. The test of the test: the first budget above the patches' share solves anew."""
     from mi_plugins.integrators.qmc_lighttrace.integrator import DEFAULT_SAMPLES, PATHS_PER_CAMERA_SAMPLE
     d = mi.cornell_box()
     d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 32

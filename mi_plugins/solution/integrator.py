@@ -38,8 +38,8 @@ DISPLAY_ROWS = (
         "how the image is made: ``'gather'``, the integrator's own estimate (solved anew for every render); "
         "``'smooth'``, ``'patches'``, ``'baked'``: from the view-independent solution, kept for every later "
         "render of the scene with the same seed, whatever the sensor or spp (``qmc_lighttrace``'s default solve "
-        "grows with the render's camera samples beyond its patches' share: see ``samples``). ``'smooth'``: direct light by "
-        "next-event estimation plus the stored light interpolated from per-vertex values; ``'patches'``: the "
+        "grows with the render's camera samples beyond its patches' share: see ``samples``). ``'smooth'``: "
+        "direct light by next-event estimation plus the stored light interpolated from per-vertex values; ``'patches'``: the "
         "flat patch values; ``'baked'``: the interpolated patch radiance (``max_depth`` -1); glossy and "
         "specular visible points gather through to the next diffuse surface (``mi_plugins.solution.display``)"),
     Row("emitter_samples", "int", "8",
