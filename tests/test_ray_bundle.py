@@ -1132,3 +1132,33 @@ def test_sky_light_is_not_mistaken_for_unconverged_interreflection():
     assert not [str(w.message) for w in caught if "converge" in str(w.message) or "burn" in str(w.message)]
     se = np.std(means, ddof=1) / np.sqrt(len(means))
     assert abs(np.mean(means) - 0.5) < 4 * se + 0.005, (means, se)
+
+
+def test_the_display_modes_solve_grows_with_the_camera_samples():
+    """Where a render's camera samples ask for more than ``iterations``, a display mode's
+    default solve runs LINES_PER_CAMERA_SAMPLE bundle lines for each (rounded up to an
+    eighth of a power of two), so that more spp lowers the solve's noise too; smaller
+    budgets share the solve of ``iterations``, one budget's renders share theirs; a given
+    ``iterations``, the gather and a solve asked for (``mi_plugins.solve``: it serves every
+    budget) keep their counts. The test of the test: the first budget above ``iterations``
+    solves anew."""
+    from mi_plugins.integrators.ray_bundle.integrator import LINES_PER_CAMERA_SAMPLE
+    d = mi.cornell_box()
+    d["sensor"]["film"]["width"] = d["sensor"]["film"]["height"] = 16
+    scene = mi.load_dict(d)
+    small = {"type": "ray_bundle", "display": "smooth", "patch_size": 0.5, "resolution": 8, "chains": 4}
+    integrator = mi.load_dict(small)
+    lines = 8 * 8 * 4                     # per iteration; 16 iterations: 4096 lines, 0.25 x 64 x 256 samples
+    assert LINES_PER_CAMERA_SAMPLE * 64 * 256 == 16 * lines
+    counts = []
+    for spp in (16, 64, 128, 128, 256, 72):
+        mi.render(scene, integrator=integrator, spp=spp, seed=budget.seed(0))
+        counts.append((integrator.counts(1)[0], integrator.solve_count))
+    assert counts == [(16, 1), (16, 1), (32, 2), (32, 2), (64, 3), (18, 4)], counts
+    solved = integrator.solve(scene, seed=budget.seed(0))          # (it serves every budget)
+    mi.render(scene, integrator=integrator, spp=256, seed=budget.seed(0))
+    assert integrator.solve_count == 5 and integrator.last_solution.meta is solved.meta
+    for params in (dict(small, iterations=16), dict(small, display="gather")):
+        other = mi.load_dict(params)
+        mi.render(scene, integrator=other, spp=4 if params["display"] == "gather" else 256, seed=budget.seed(0))
+        assert other.counts(1)[0] == 16, (params, other.counts(1))

@@ -199,8 +199,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.camera_paths = 0
         wanted = int(PATHS_PER_CAMERA_SAMPLE * camera_samples)
         if self.samples is None and self.display != "gather" and wanted > self.paths_for(table):
-            step = 1 << max(wanted.bit_length() - 4, 0)
-            self.camera_paths = min(-(-wanted // step) * step, MAX_PATHS)
+            self.camera_paths = min(self.budget_size(wanted), MAX_PATHS)
 
     def budget_key(self):
         return self.camera_paths

@@ -41,6 +41,11 @@ caches.register(STEP_CACHE.clear)
 #: the paper's settings (sections 5-6): one chain of 128^2 lines, emission carried by the
 #: bundles, the image from the chain's own patch values
 PAPER_SETTINGS = {"chains": 1, "resolution": 128, "iterations": 64, "first_shot": False, "average_diffuse": False}
+#: a display mode's default solve traces at least this many bundle lines per camera sample
+#: of the render: with a fixed solve the display's error stops at the solve's noise. The
+#: time-optimal share measured with the smooth display at 128 px is about 0.5 on a furnished
+#: room and 0.12 on Mitsuba's Cornell box (docs/stochastic_iteration.md)
+LINES_PER_CAMERA_SAMPLE = 0.25
 
 
 @documented(parameters.ROWS)
@@ -71,7 +76,8 @@ class RayBundleIntegrator(SolutionIntegrator):
     every chain (``burn_in`` once); every averaged iteration traces one camera sample per
     pixel and chain, from the sensor's sampler (with ``average_diffuse``, in the final
     gathering after the iterations). With a display from the solution, ``spp`` is the
-    display's camera samples per pixel and the solve runs ``iterations`` global iterations.
+    display's camera samples per pixel and the solve runs ``iterations`` global iterations
+    (by default more where the camera samples ask for them: :meth:`budget_paths`).
     **Scenes:** patches are the triangles of meshes and the cells of ``rectangle``,
     ``disk``, ``sphere`` and ``cylinder``; orientation is Mitsuba's (winding,
     ``flip_normals``); ``twosided`` surfaces have a patch per side. The environment lights
@@ -104,6 +110,8 @@ class RayBundleIntegrator(SolutionIntegrator):
         super().__init__(props)
         p = Params(props, self.plugin)
         self.read_iterations(p, 16)
+        self.iterations_given = p.given("iterations")
+        self.camera_iterations = 0    # the default solve's share of a render's camera samples (budget_paths)
         self.resolution = p.int("resolution", 32, lo=1)
         self.chains = p.int("chains", None, lo=1)       # None: DEFAULT_CHAINS, fewer to fit memory
         self.bidirectional = p.bool("bidirectional", True)
@@ -149,7 +157,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         """(iterations, burn-in) of a render with ``spp``: ``iterations * spp`` and
         ``burn_in``, both raised where a finite depth needs a longer burn-in (every order
         present from the first averaged iteration)."""
-        total, burn_in = self.iterations * int(spp), self.burn_in
+        total, burn_in = max(self.iterations, self.camera_iterations) * int(spp), self.burn_in
         extra = max(0, self.orders() - 1 - burn_in) if self.max_depth >= 0 else 0
         return total + extra, burn_in + extra
 
@@ -236,6 +244,20 @@ class RayBundleIntegrator(SolutionIntegrator):
             run.final_gathering(steps, self.progress.averaged)
 
     # ------------------------------------------------------------------ view-independent solutions
+    def budget_paths(self, table, camera_samples):
+        """Set the global iterations a display mode's default solve runs for a render of
+        ``camera_samples`` (spp x the film's pixels): LINES_PER_CAMERA_SAMPLE bundle lines
+        each (``resolution``^2 lines per chain and iteration), rounded up as
+        :meth:`budget_size` rounds, where that is more than ``iterations``; else 0."""
+        self.camera_iterations = 0
+        lines = self.resolution ** 2 * (self.chains or DEFAULT_CHAINS)
+        wanted = -(-int(LINES_PER_CAMERA_SAMPLE * camera_samples) // lines)
+        if not self.iterations_given and self.display != "gather" and wanted > self.iterations:
+            self.camera_iterations = min(self.budget_size(wanted), MAX_ITERATIONS)
+
+    def budget_key(self):
+        return self.camera_iterations
+
     def solution_settings(self):
         return (self.iterations, self.burn_in, self.resolution, self.chains, self.bidirectional, self.first_shot,
                 self.direction_sequence, self.stratify_chains, self.patch_size, self.subdivide, self.cluster,
@@ -245,6 +267,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""
         scene = frame.scene
+        self.budget_paths(table, frame.spp * frame.pixels)
         passes = display.pass_layout(frame.spp, frame.sample_pixels())[1]
         total, burn_in = self.counts(1)
         steps = self.steps(total, burn_in, total + passes)

@@ -63,4 +63,11 @@ OWN = (
 )
 
 #: every row, in the reference's order
-ROWS = iteration_rows(16, "global iterations") + OWN
+_ITERATIONS, _BURN_IN = iteration_rows(16, "global iterations")
+ROWS = (_ITERATIONS.but(
+    default="16; in the display modes at least 0.25 bundle lines per camera sample of the render",
+    meaning=">= 1 global iterations per unit of ``spp``; in the display modes the solve's iterations (its "
+            "default grows with the render's camera samples, spp x pixels, where those ask for more than 16, "
+            "resolution^2 x chains lines an iteration: more spp then lowers the solve's noise too, and a render "
+            "of another budget solves again; a given ``iterations`` keeps one solve for every budget)"),
+        _BURN_IN) + OWN

@@ -114,6 +114,13 @@ class SolutionIntegrator(CoreIntegrator):
         """Size a default solve for a render of ``camera_samples`` (spp x the film's pixels;
         0: a solve alone); a plugin whose solve does not grow with them ignores it."""
 
+    @staticmethod
+    def budget_size(wanted):
+        """``wanted`` rounded up to a multiple of an eighth of a power of two, so that renders
+        of nearby budgets share one solve."""
+        step = 1 << max(int(wanted).bit_length() - 4, 0)
+        return -(-int(wanted) // step) * step
+
     def budget_key(self):
         """What a render's budget changes in a default solve (a plugin whose solve grows
         with the camera samples: its size); never part of the settings a saved solution
