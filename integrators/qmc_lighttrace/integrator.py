@@ -146,7 +146,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         self.layers = Layers(self.max_depth, visible=self.display != "gather")
         self.triangle_radiance = self.reflected_radiance = self.triangle_areas = self.irradiance = None
         self.paths_used, self.delta_e_history = 0, []
-        self.camera_paths = 0      # the default solve's share of a render's camera samples (budget_paths)
+        self.camera_paths = 0      # the default solve's share of a render's camera samples (size_solve)
 
     def check_scene(self, scene, sensor):
         super().check_scene(scene, sensor)
@@ -159,7 +159,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         returns (triangle_radiance (K, 2, 3) or None, triangle_areas (K,))."""
         self.prepare(scene, None)
         table = self.patch_table(scene)
-        self.budget_paths(table, 0)
+        self.size_solve(table, 0)
         particle_phase(self, scene, table, seed, report=report)
         return self.triangle_radiance, self.triangle_areas
 
@@ -183,14 +183,14 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         """The particle paths of a solve on ``table``: ``samples``, or by default
         DEFAULT_SAMPLES with ``display`` 'gather'; in the display modes at least
         PATHS_PER_PATCH per patch of ``table`` and the render's share of its camera
-        samples (:meth:`budget_paths`)."""
+        samples (:meth:`size_solve`)."""
         if self.samples is not None:
             return self.samples
         if self.display == "gather":
             return DEFAULT_SAMPLES
         return min(max(DEFAULT_SAMPLES, PATHS_PER_PATCH * int(table.front_count), self.camera_paths), MAX_PATHS)
 
-    def budget_paths(self, table, camera_samples):
+    def size_solve(self, table, camera_samples):
         """Set the paths a display mode's default solve takes for a render of
         ``camera_samples`` (spp x the film's pixels): PATHS_PER_CAMERA_SAMPLE of them,
         rounded up to a multiple of an eighth of a power of two (renders of nearby budgets
@@ -230,7 +230,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
                              % self.epsilon)
         table = self.patch_table(scene)
         size = scene.sensors()[0].film().crop_size()
-        self.budget_paths(table, int(spp) * int(size[0]) * int(size[1]))
+        self.size_solve(table, int(spp) * int(size[0]) * int(size[1]))
         return ParticleRanges(paths=self.paths_for(table))
 
     def trace_particles(self, scene, start, count, seed):
@@ -253,7 +253,7 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
             solution = Solution(particle_phase(self, scene, table, frame.seed, given=frame.task)[0], table.areas_np,
                                 self._meta(scene, table, frame.seed, self.paths_used))
         else:
-            self.budget_paths(table, frame.spp * frame.pixels)
+            self.size_solve(table, frame.spp * frame.pixels)
             solution = self.solution_for(scene, frame.seed, table, frame.sensor)
             table = self.table_of(scene, solution)
         if self.display != "gather":

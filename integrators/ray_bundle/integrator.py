@@ -77,7 +77,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     pixel and chain, from the sensor's sampler (with ``average_diffuse``, in the final
     gathering after the iterations). With a display from the solution, ``spp`` is the
     display's camera samples per pixel and the solve runs ``iterations`` global iterations
-    (by default more where the camera samples ask for them: :meth:`budget_paths`).
+    (by default more where the camera samples ask for them: :meth:`size_solve`).
     **Scenes:** patches are the triangles of meshes and the cells of ``rectangle``,
     ``disk``, ``sphere`` and ``cylinder``; orientation is Mitsuba's (winding,
     ``flip_normals``); ``twosided`` surfaces have a patch per side. The environment lights
@@ -111,7 +111,7 @@ class RayBundleIntegrator(SolutionIntegrator):
         p = Params(props, self.plugin)
         self.read_iterations(p, 16)
         self.iterations_given = p.given("iterations")
-        self.camera_iterations = 0    # the default solve's share of a render's camera samples (budget_paths)
+        self.camera_iterations = 0    # the default solve's share of a render's camera samples (size_solve)
         self.resolution = p.int("resolution", 32, lo=1)
         self.chains = p.int("chains", None, lo=1)       # None: DEFAULT_CHAINS, fewer to fit memory
         self.bidirectional = p.bool("bidirectional", True)
@@ -244,7 +244,7 @@ class RayBundleIntegrator(SolutionIntegrator):
             run.final_gathering(steps, self.progress.averaged)
 
     # ------------------------------------------------------------------ view-independent solutions
-    def budget_paths(self, table, camera_samples):
+    def size_solve(self, table, camera_samples):
         """Set the global iterations a display mode's default solve runs for a render of
         ``camera_samples`` (spp x the film's pixels): LINES_PER_CAMERA_SAMPLE bundle lines
         each (``resolution``^2 lines per chain and iteration), rounded up as
@@ -267,7 +267,7 @@ class RayBundleIntegrator(SolutionIntegrator):
     def _render_solution(self, frame, table):
         """A render in a display mode: the solution (kept, or solved now), then its display."""
         scene = frame.scene
-        self.budget_paths(table, frame.spp * frame.pixels)
+        self.size_solve(table, frame.spp * frame.pixels)
         passes = display.pass_layout(frame.spp, frame.sample_pixels())[1]
         total, burn_in = self.counts(1)
         steps = self.steps(total, burn_in, total + passes)

@@ -8,7 +8,7 @@ view-independent solutions, kept and shown.
 - the solution of the last scene and seed it rendered (:meth:`solution_for`): a render
   of the same scene (same object, same content: ``mi_plugins.base.fingerprint``) with the
   same seed and settings reuses it, whatever the sensor or spp, unless the plugin sizes
-  its default solve by the render's camera samples (:meth:`budget_paths`: then a render
+  its default solve by the render's camera samples (:meth:`size_solve`: then a render
   of a budget that asks for another size solves again; a solve of :meth:`solve` serves
   every budget); another seed, an edited scene or another scene object solves again
   (``solve_count`` counts the solves). The cache holds numpy arrays only, never the
@@ -110,7 +110,7 @@ class SolutionIntegrator(CoreIntegrator):
         raise NotImplementedError
 
     # ------------------------------------------------------------------ the cache
-    def budget_paths(self, table, camera_samples):
+    def size_solve(self, table, camera_samples):
         """Size a default solve for a render of ``camera_samples`` (spp x the film's pixels;
         0: a solve alone); a plugin whose solve does not grow with them ignores it."""
 
@@ -164,7 +164,7 @@ class SolutionIntegrator(CoreIntegrator):
         with collection.paused():
             self.prepare(scene, None)
             table = self.patch_table(scene)
-            self.budget_paths(table, 0)
+            self.size_solve(table, 0)
             solution = self.solution_for(scene, seed, table)
             # (a solve asked for serves the later renders of every budget, as a given one does)
             self._cached_any_budget = self._cached is not None and self._cached[1] is solution
