@@ -196,10 +196,9 @@ class QMCLightTraceIntegrator(SolutionIntegrator):
         rounded up to a multiple of an eighth of a power of two (renders of nearby budgets
         share one solve), where that is more than the patches' own share; else 0, and a
         render of any smaller budget reuses the same solve."""
-        self.camera_paths = 0
-        wanted = int(PATHS_PER_CAMERA_SAMPLE * camera_samples)
-        if self.samples is None and self.display != "gather" and wanted > self.paths_for(table):
-            self.camera_paths = min(self.budget_size(wanted), MAX_PATHS)
+        self.camera_paths = 0            # (paths_for then gives the patches' own share: the floor)
+        self.camera_paths = self.budget_share(PATHS_PER_CAMERA_SAMPLE * camera_samples, self.paths_for(table),
+                                              MAX_PATHS, self.samples is not None)
 
     def budget_key(self):
         return self.camera_paths

@@ -248,12 +248,10 @@ class RayBundleIntegrator(SolutionIntegrator):
         """Set the global iterations a display mode's default solve runs for a render of
         ``camera_samples`` (spp x the film's pixels): LINES_PER_CAMERA_SAMPLE bundle lines
         each (``resolution``^2 lines per chain and iteration), rounded up as
-        :meth:`budget_size` rounds, where that is more than ``iterations``; else 0."""
-        self.camera_iterations = 0
+        :meth:`budget_share` rounds, where that is more than ``iterations``; else 0."""
         lines = self.resolution ** 2 * (self.chains or DEFAULT_CHAINS)
         wanted = -(-int(LINES_PER_CAMERA_SAMPLE * camera_samples) // lines)
-        if not self.iterations_given and self.display != "gather" and wanted > self.iterations:
-            self.camera_iterations = min(self.budget_size(wanted), MAX_ITERATIONS)
+        self.camera_iterations = self.budget_share(wanted, self.iterations, MAX_ITERATIONS, self.iterations_given)
 
     def budget_key(self):
         return self.camera_iterations

@@ -37,11 +37,12 @@ DISPLAY_ROWS = (
     Row("display", "string", "``'gather'``",
         "how the image is made: ``'gather'``, the integrator's own estimate (solved anew for every render); "
         "``'smooth'``, ``'patches'``, ``'baked'``: from the view-independent solution, kept for every later "
-        "render of the scene with the same seed, whatever the sensor or spp (``qmc_lighttrace``'s default solve "
-        "grows with the render's camera samples beyond its patches' share: see ``samples``). ``'smooth'``: "
-        "direct light by next-event estimation plus the stored light interpolated from per-vertex values; ``'patches'``: the "
-        "flat patch values; ``'baked'``: the interpolated patch radiance (``max_depth`` -1); glossy and "
-        "specular visible points gather through to the next diffuse surface (``mi_plugins.solution.display``)"),
+        "render of the scene with the same seed, whatever the sensor or spp (a default solve grows with the "
+        "render's camera samples where they ask for more: ``qmc_lighttrace``'s ``samples``, ``ray_bundle``'s "
+        "``iterations``). ``'smooth'``: direct light by next-event estimation plus the stored light "
+        "interpolated from per-vertex values; ``'patches'``: the flat patch values; ``'baked'``: the "
+        "interpolated patch radiance (``max_depth`` -1); glossy and specular visible points gather through to "
+        "the next diffuse surface (``mi_plugins.solution.display``)"),
     Row("emitter_samples", "int", "8",
         "1 .. 64: camera rays per camera sample for the emission seen directly, in the pixels on a visible "
         "emitter's edge only, at the points of a rank-1 lattice across the pixel; 1: off"),
@@ -114,12 +115,17 @@ class SolutionIntegrator(CoreIntegrator):
         """Size a default solve for a render of ``camera_samples`` (spp x the film's pixels;
         0: a solve alone); a plugin whose solve does not grow with them ignores it."""
 
-    @staticmethod
-    def budget_size(wanted):
-        """``wanted`` rounded up to a multiple of an eighth of a power of two, so that renders
-        of nearby budgets share one solve."""
-        step = 1 << max(int(wanted).bit_length() - 4, 0)
-        return -(-int(wanted) // step) * step
+    def budget_share(self, wanted, floor, cap, given):
+        """The size of a default solve that a render's camera samples ask for: ``wanted``
+        (paths, iterations) rounded up to a multiple of an eighth of a power of two, so that
+        renders of nearby budgets share one solve, at most ``cap``; 0 (the solve's own
+        default) where that is not above ``floor``, the size was ``given`` or the display
+        is the gather."""
+        wanted = int(wanted)
+        if given or self.display == "gather" or wanted <= floor:
+            return 0
+        step = 1 << max(wanted.bit_length() - 4, 0)
+        return min(-(-wanted // step) * step, cap)
 
     def budget_key(self):
         """What a render's budget changes in a default solve (a plugin whose solve grows
